@@ -1,0 +1,19 @@
+//! The `vidslam` command line: one subcommand per module here.
+
+use clap::{Parser, Subcommand};
+
+/// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
+#[derive(Parser, Debug)]
+#[command(name = "vidslam", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {}
+
+/// Runs the parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {}
+}

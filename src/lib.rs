@@ -1,0 +1,11 @@
+//! vidslam: tightly-coupled monocular visual-inertial direct SLAM (Concha et al., ICRA 2016).
+//!
+//! Layers, each importing only from the ones above it in this list:
+//! `time`, `geometry` → `camera`, `image`, `imu` → `dataset` → `eval`, `sim` → `tracking`,
+//! `mapping` → `runtime`, `output` → `cli`.
+//! Frame and naming conventions are documented once in [`geometry`].
+
+pub mod cli;
+pub mod dataset;
+pub mod geometry;
+pub mod time;
