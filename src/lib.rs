@@ -5,7 +5,10 @@
 //! `mapping` → `runtime`, `output` → `cli`.
 //! Frame and naming conventions are documented once in [`geometry`].
 
+pub mod camera;
 pub mod cli;
 pub mod dataset;
 pub mod geometry;
+pub mod image;
+pub mod imu;
 pub mod time;

@@ -8,7 +8,9 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 
 /// Nanoseconds since an arbitrary epoch of the clock that produced it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
 #[serde(transparent)]
 pub struct TimeNs(pub i64);
 
@@ -70,7 +72,11 @@ impl TimeNs {
         {
             return None;
         }
-        let secs: i64 = if int_part.is_empty() { 0 } else { int_part.parse().ok()? };
+        let secs: i64 = if int_part.is_empty() {
+            0
+        } else {
+            int_part.parse().ok()?
+        };
         let mut frac_ns: i64 = 0;
         for (i, b) in frac_part.bytes().enumerate() {
             let d = (b - b'0') as i64;
@@ -101,7 +107,13 @@ mod tests {
 
     #[test]
     fn secs_string_round_trip_is_exact() {
-        for ns in [0i64, 1, 999_999_999, 1_403_715_273_262_142_976, -1_500_000_001] {
+        for ns in [
+            0i64,
+            1,
+            999_999_999,
+            1_403_715_273_262_142_976,
+            -1_500_000_001,
+        ] {
             let t = TimeNs(ns);
             assert_eq!(TimeNs::parse_secs(&t.to_secs_string()), Some(t), "{ns}");
         }
@@ -113,7 +125,10 @@ mod tests {
         assert_eq!(TimeNs::parse_secs("-0.25"), Some(TimeNs(-250_000_000)));
         assert_eq!(TimeNs::parse_secs("3"), Some(TimeNs(3_000_000_000)));
         assert_eq!(TimeNs::parse_secs(".5"), Some(TimeNs(500_000_000)));
-        assert_eq!(TimeNs::parse_secs("1.0000000006"), Some(TimeNs(1_000_000_001)));
+        assert_eq!(
+            TimeNs::parse_secs("1.0000000006"),
+            Some(TimeNs(1_000_000_001))
+        );
         assert_eq!(TimeNs::parse_secs("1.4e0"), Some(TimeNs(1_400_000_000)));
         assert_eq!(TimeNs::parse_secs("abc"), None);
         assert_eq!(TimeNs::parse_secs(""), None);

@@ -1,0 +1,114 @@
+//! `vidslam dataset info DIR`: what an ASL/EuRoC folder holds.
+
+use crate::dataset::{AslDataset, Event};
+use crate::time::TimeNs;
+use clap::{Args, Subcommand};
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct DatasetArgs {
+    #[command(subcommand)]
+    pub command: DatasetCommand,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum DatasetCommand {
+    /// Counts, time spans and rates of the camera, IMU and ground truth of an ASL/EuRoC folder;
+    /// streams every row, so it also validates the files (errors name file and line).
+    Info {
+        /// Dataset folder (containing `mav0/`, or `mav0/` itself).
+        dir: PathBuf,
+    },
+}
+
+pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
+    match args.command {
+        DatasetCommand::Info { dir } => info(&dir),
+    }
+}
+
+fn span_line(name: &str, n: usize, first: Option<TimeNs>, last: Option<TimeNs>) {
+    match (first, last) {
+        (Some(a), Some(b)) if n > 1 => {
+            let dur_s = b.secs_since(a);
+            println!(
+                "{name:<13} {n:>8}   {:>20} .. {:>20}   {dur_s:>8.3} s   {:>8.2} Hz",
+                a.0,
+                b.0,
+                (n - 1) as f64 / dur_s
+            );
+        }
+        _ => println!("{name:<13} {n:>8}"),
+    }
+}
+
+fn info(dir: &std::path::Path) -> anyhow::Result<()> {
+    let ds = AslDataset::open(dir)?;
+    let m = &ds.camera.model;
+    println!("dataset       {}", ds.mav0().display());
+    println!(
+        "camera        {}x{} px, fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {:?}, {} Hz nominal",
+        m.width, m.height, m.fx, m.fy, m.cx, m.cy, m.distortion, ds.camera.rate_hz
+    );
+    let n = &ds.imu.noise;
+    println!(
+        "imu noise     gyro {:.3e} rad/s/√Hz (walk {:.3e}), accel {:.3e} m/s²/√Hz (walk {:.3e}), {} Hz nominal",
+        n.gyro_noise_density,
+        n.gyro_random_walk,
+        n.accel_noise_density,
+        n.accel_random_walk,
+        ds.imu.rate_hz
+    );
+    println!(
+        "{:<13} {:>8}   {:>20}    {:>20}   {:>10}   {:>11}",
+        "stream", "count", "first [ns]", "last [ns]", "span", "rate"
+    );
+    let (mut nf, mut ni) = (0usize, 0usize);
+    let (mut f0, mut f1, mut i0, mut i1) = (None, None, None, None);
+    for ev in ds.events()? {
+        match ev? {
+            Event::Imu(s) => {
+                ni += 1;
+                i0.get_or_insert(s.t);
+                i1 = Some(s.t);
+            }
+            Event::Frame(f) => {
+                nf += 1;
+                f0.get_or_insert(f.t);
+                f1 = Some(f.t);
+            }
+        }
+    }
+    span_line("cam0", nf, f0, f1);
+    span_line("imu0", ni, i0, i1);
+    match ds.ground_truth()? {
+        Some(gt) => {
+            let full = gt.states.first().is_some_and(|s| s.v_world_m_s.is_some());
+            let name = if full { "groundtruth+" } else { "groundtruth" };
+            span_line(
+                name,
+                gt.states.len(),
+                gt.states.first().map(|s| s.t),
+                gt.states.last().map(|s| s.t),
+            );
+            let path_m: f64 = gt
+                .states
+                .windows(2)
+                .map(|w| {
+                    (w[1].t_world_body.translation.vector - w[0].t_world_body.translation.vector)
+                        .norm()
+                })
+                .sum();
+            println!("path length   {path_m:.2} m (ground truth)");
+        }
+        None => println!("groundtruth   none"),
+    }
+    let depth = ds.mav0().join("depth0/data.csv");
+    if depth.exists() {
+        println!(
+            "depth0        present (16-bit PNG, {} units per m)",
+            crate::dataset::DEPTH_PNG_UNITS_PER_M
+        );
+    }
+    Ok(())
+}
