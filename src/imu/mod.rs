@@ -51,3 +51,7 @@ impl ImuNoise {
         (self.gyro_random_walk * k, self.accel_random_walk * k)
     }
 }
+
+pub mod integration;
+
+pub use integration::{ImuBias, NavState, Preintegration, propagate};
