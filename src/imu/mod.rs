@@ -55,3 +55,8 @@ impl ImuNoise {
 pub mod integration;
 
 pub use integration::{ImuBias, NavState, Preintegration, propagate};
+pub mod residual;
+
+pub use residual::{
+    FrameState, Matrix15, Vector15, imu_jacobian_j, imu_residual, imu_residual_covariance,
+};
