@@ -12,3 +12,4 @@ pub mod geometry;
 pub mod image;
 pub mod imu;
 pub mod time;
+pub mod tracking;
