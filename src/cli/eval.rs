@@ -40,7 +40,7 @@ pub enum AlignArg {
     Se3,
     /// Rotation, translation and scale (as `evo_ape -as`), for monocular estimates.
     Sim3,
-    /// None: the estimate is already in the ground-truth world frame.
+    /// No alignment: the estimate is already in the ground-truth world frame.
     None,
 }
 

@@ -51,6 +51,31 @@ fn padded_range(values: impl Iterator<Item = f64>, pad: f64, min_span: f64) -> (
     )
 }
 
+/// Keeps the first point, then each point at least `min_step` from the last kept one, with `y`
+/// weighted by `y_weight` (to measure both axes in pixels), and the last point. plotters draws
+/// wide strokes of (near) zero-length segments as stray spikes; this also bounds the work.
+fn decimate(
+    points: impl Iterator<Item = (f64, f64)>,
+    min_step: f64,
+    y_weight: f64,
+) -> Vec<(f64, f64)> {
+    let mut kept: Vec<(f64, f64)> = Vec::new();
+    let mut last_seen = None;
+    for (x, y) in points {
+        last_seen = Some((x, y));
+        match kept.last() {
+            Some(&(kx, ky)) if (x - kx).hypot((y - ky) * y_weight) < min_step => {}
+            _ => kept.push((x, y)),
+        }
+    }
+    if let Some(p) = last_seen
+        && kept.last() != Some(&p)
+    {
+        kept.push(p);
+    }
+    kept
+}
+
 /// Draws `report`'s per-pose data to a PNG at `png_path`: left, the top view (x-y, m, equal axes)
 /// of the ground truth and the aligned estimate; right, the ATE (m) against time since the first
 /// matched pose (s). The title carries the headline figures.
@@ -83,7 +108,7 @@ pub fn plot_report(report: &EvalReport, png_path: &Path) -> Result<(), PlotError
     let (left, right) = root.split_horizontally(WIDTH_PX / 2);
 
     // Top view with equal axis scales: widen the narrower range to the panel's plot-area aspect.
-    let (x_label_px, y_label_px, margin_px, caption_px) = (50u32, 80u32, 20u32, 40u32);
+    let (x_label_px, y_label_px, margin_px, caption_px) = (60u32, 80u32, 20u32, 40u32);
     let (panel_w, panel_h) = left.dim_in_pixel();
     let area_w = f64::from(panel_w - y_label_px - 2 * margin_px);
     let area_h = f64::from(panel_h - x_label_px - 2 * margin_px - caption_px);
@@ -116,26 +141,32 @@ pub fn plot_report(report: &EvalReport, png_path: &Path) -> Result<(), PlotError
         .axis_desc_style(("sans-serif", 18))
         .draw()
         .map_err(|e| draw_err(&e))?;
-    top.draw_series(LineSeries::new(
-        report
-            .per_pose
-            .iter()
-            .map(|p| (p.p_world_gt_m.x, p.p_world_gt_m.y)),
-        GT_COLOR.stroke_width(2),
-    ))
-    .map_err(|e| draw_err(&e))?
-    .label("ground truth")
-    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GT_COLOR.stroke_width(3)));
-    top.draw_series(LineSeries::new(
+    // Estimate first, ground truth on top so that a noisy estimate does not hide it.
+    let min_step_m = 1.5 * m_per_px;
+    let est_xy = decimate(
         report
             .per_pose
             .iter()
             .map(|p| (p.p_world_est_m.x, p.p_world_est_m.y)),
-        EST_COLOR.stroke_width(2),
-    ))
-    .map_err(|e| draw_err(&e))?
-    .label(format!("estimate ({} aligned)", report.align))
-    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], EST_COLOR.stroke_width(3)));
+        min_step_m,
+        1.0,
+    );
+    let gt_xy = decimate(
+        report
+            .per_pose
+            .iter()
+            .map(|p| (p.p_world_gt_m.x, p.p_world_gt_m.y)),
+        min_step_m,
+        1.0,
+    );
+    top.draw_series(LineSeries::new(est_xy, EST_COLOR.stroke_width(1)))
+        .map_err(|e| draw_err(&e))?
+        .label(format!("estimate ({} aligned)", report.align))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], EST_COLOR.stroke_width(3)));
+    top.draw_series(LineSeries::new(gt_xy, GT_COLOR.stroke_width(2)))
+        .map_err(|e| draw_err(&e))?
+        .label("ground truth")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GT_COLOR.stroke_width(3)));
     top.configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)
         .label_font(("sans-serif", 16))
@@ -160,13 +191,19 @@ pub fn plot_report(report: &EvalReport, png_path: &Path) -> Result<(), PlotError
         .axis_desc_style(("sans-serif", 18))
         .draw()
         .map_err(|e| draw_err(&e))?;
-    ate.draw_series(LineSeries::new(
+    // One point per ~pixel column and row keeps the PNG readable for long sequences.
+    let (ate_w_px, ate_h_px) = right.dim_in_pixel();
+    let s_per_px = t_end_s / f64::from(ate_w_px.max(1));
+    let m_per_px_ate = ate_top_m / f64::from(ate_h_px.max(1));
+    let ate_series = decimate(
         report.per_pose.iter().map(|p| (p.time_s, p.ate_m)),
-        EST_COLOR.stroke_width(1),
-    ))
-    .map_err(|e| draw_err(&e))?
-    .label("ATE")
-    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], EST_COLOR.stroke_width(3)));
+        s_per_px,
+        s_per_px / m_per_px_ate,
+    );
+    ate.draw_series(LineSeries::new(ate_series, EST_COLOR.stroke_width(1)))
+        .map_err(|e| draw_err(&e))?
+        .label("ATE")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], EST_COLOR.stroke_width(3)));
     let rmse_m = report.ate_rmse_m;
     ate.draw_series(LineSeries::new(
         [(0.0, rmse_m), (t_end_s, rmse_m)],
