@@ -8,6 +8,7 @@
 pub mod camera;
 pub mod cli;
 pub mod dataset;
+pub mod eval;
 pub mod geometry;
 pub mod image;
 pub mod imu;

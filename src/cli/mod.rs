@@ -1,6 +1,7 @@
 //! The `vidslam` command line: one subcommand per module here.
 
 pub mod dataset;
+pub mod eval;
 
 use clap::{Parser, Subcommand};
 
@@ -16,11 +17,14 @@ pub struct Cli {
 pub enum Command {
     /// Inspect ASL/EuRoC dataset folders.
     Dataset(dataset::DatasetArgs),
+    /// Compare an estimated trajectory with ground truth (ATE, RPE, scale error).
+    Eval(eval::EvalArgs),
 }
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Dataset(a) => dataset::run(a),
+        Command::Eval(args) => eval::run(&args),
     }
 }
