@@ -72,7 +72,7 @@ pub fn perturb(
             sum_a2 += dr.angle().powi(2);
             let mut noisy = p.t_world_body;
             noisy.translation.vector += dp;
-            noisy.rotation = noisy.rotation * dr;
+            noisy.rotation *= dr;
             StampedPose {
                 t: p.t,
                 t_world_body: t_est_gt.transform_pose(&noisy),
