@@ -6,6 +6,9 @@ use anyhow::Context as _;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 
+/// Below this matched ground-truth path length, m, a warning says the alignment is ill-conditioned.
+const SHORT_PATH_M: f64 = 1.0;
+
 /// Compare an estimated trajectory with ground truth: ATE, rotation error, RPE over 1 m and 10 m,
 /// and the Sim3 scale error. Prints a table; optionally writes JSON and a PNG plot.
 #[derive(Args, Debug, Clone)]
@@ -76,6 +79,13 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         )
     })?;
     print!("{}", report.to_table());
+    if report.gt_path_m < SHORT_PATH_M {
+        eprintln!(
+            "warning: the matched ground truth travels only {:.3} m: alignment and scale are \
+             poorly conditioned",
+            report.gt_path_m
+        );
+    }
     if let Some(path) = &args.json {
         report.write_json(path).context("writing --json")?;
     }

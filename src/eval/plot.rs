@@ -232,7 +232,7 @@ mod tests {
 
     fn report_with(per_pose: Vec<PoseError>) -> EvalReport {
         let json = r#"{"align":"se3","max_dt_ms":10.0,"gt_poses":50,"est_poses":50,
-            "matched_poses":50,"ate_rmse_m":0.05,"ate_mean_m":0.04,"ate_median_m":0.04,
+            "matched_poses":50,"duration_s":2.45,"gt_path_m":4.9,"ate_rmse_m":0.05,"ate_mean_m":0.04,"ate_median_m":0.04,
             "ate_max_m":0.1,"rot_rmse_deg":1.0,"rot_mean_deg":1.0,"rot_max_deg":2.0,
             "rpe_1m_trans_rmse_m":null,"rpe_1m_rot_rmse_deg":null,"rpe_1m_segments":0,
             "rpe_10m_trans_rmse_m":null,"rpe_10m_rot_rmse_deg":null,"rpe_10m_segments":0,

@@ -25,6 +25,11 @@ pub struct EvalReport {
     pub est_poses: usize,
     /// Estimate poses matched to (interpolated) ground truth.
     pub matched_poses: usize,
+    /// Time from the first to the last matched pose, s.
+    pub duration_s: f64,
+    /// Path length travelled by the ground truth over the matched poses, m. Below a metre or so,
+    /// the alignment (and thus the scale) is poorly conditioned.
+    pub gt_path_m: f64,
     /// Absolute translation error after alignment, m.
     pub ate_rmse_m: f64,
     pub ate_mean_m: f64,
@@ -93,7 +98,14 @@ impl EvalReport {
         let ate = ErrorStats::of(&inp.absolute.trans_m).unwrap_or(zero);
         let rot = ErrorStats::of(&inp.absolute.rot_deg).unwrap_or(zero);
         let rmse = |e: &[f64]| ErrorStats::of(e).map(|s| s.rmse);
+        let gt_path_m = inp
+            .per_pose
+            .windows(2)
+            .map(|w| (w[1].p_world_gt_m - w[0].p_world_gt_m).norm())
+            .sum();
         EvalReport {
+            duration_s: inp.per_pose.last().map_or(0.0, |p| p.time_s),
+            gt_path_m,
             align: inp.align,
             max_dt_ms: inp.max_dt_ms,
             gt_poses: inp.gt_poses,
@@ -144,6 +156,13 @@ impl EvalReport {
                 format!(
                     "{} of {} estimated ({} GT, max gap {} ms)",
                     self.matched_poses, self.est_poses, self.gt_poses, self.max_dt_ms
+                ),
+            ),
+            (
+                "matched span".into(),
+                format!(
+                    "{:.3} s, {:.3} m travelled (GT)",
+                    self.duration_s, self.gt_path_m
                 ),
             ),
             ("ATE RMSE [m]".into(), format!("{:.6}", self.ate_rmse_m)),
@@ -222,17 +241,19 @@ mod tests {
             absolute: &abs,
             rpe_1m: &rpe_1m,
             rpe_10m: &RelativeErrors::default(),
-            per_pose: vec![
-                PoseError {
-                    t: TimeNs(0),
-                    time_s: 0.0,
-                    p_world_gt_m: Vector3::zeros(),
+            // Ground truth along x at 0, 1, 3 m, at 0, 1, 2 s: 3 m travelled in 2 s.
+            per_pose: [0.0, 1.0, 3.0]
+                .iter()
+                .enumerate()
+                .map(|(k, &x_m)| PoseError {
+                    t: TimeNs(k as i64 * TimeNs::NS_PER_S),
+                    time_s: k as f64,
+                    p_world_gt_m: Vector3::new(x_m, 0.0, 0.0),
                     p_world_est_m: Vector3::zeros(),
                     ate_m: 0.0,
                     rot_err_deg: 0.0,
-                };
-                3
-            ],
+                })
+                .collect(),
         })
     }
 
@@ -251,7 +272,9 @@ mod tests {
                 "ate_mean_m",
                 "ate_median_m",
                 "ate_rmse_m",
+                "duration_s",
                 "est_poses",
+                "gt_path_m",
                 "gt_poses",
                 "matched_poses",
                 "max_dt_ms",
@@ -270,6 +293,8 @@ mod tests {
         );
         assert_eq!(obj["align"], "sim3");
         assert_eq!(obj["matched_poses"], 3);
+        assert_eq!(obj["gt_path_m"], 3.0);
+        assert_eq!(obj["duration_s"], 2.0);
         assert!(obj["rpe_10m_trans_rmse_m"].is_null());
         assert!((obj["ate_rmse_m"].as_f64().unwrap() - 0.03f64.sqrt()).abs() < 1e-12);
         assert!((obj["scale_error_pct"].as_f64().unwrap() - 2.0).abs() < 1e-9);

@@ -89,6 +89,7 @@ pub fn umeyama(
     }
     cov *= inv_n;
     var_src *= inv_n;
+    // Inputs are finite (trajectory files reject NaN), so this also rejects a NaN variance.
     if var_src.is_nan() || var_src <= MIN_VARIANCE_M2 {
         return Err(UmeyamaError::NoSpread {
             variance_m2: var_src,
