@@ -1,5 +1,7 @@
 //! The `vidslam` command line: one subcommand per module here.
 
+pub mod imu;
+
 use clap::{Parser, Subcommand};
 
 /// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
@@ -11,9 +13,14 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-pub enum Command {}
+pub enum Command {
+    /// Microstrain 3DM-GX4-25 IMU: decode and record MIP streams.
+    Imu(imu::ImuArgs),
+}
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Imu(args) => imu::run(args),
+    }
 }

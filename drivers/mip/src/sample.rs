@@ -134,9 +134,9 @@ pub fn host_monotonic_ns() -> i64 {
     };
     // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
     unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    (ts.tv_sec as i64)
-        .saturating_mul(1_000_000_000)
-        .saturating_add(ts.tv_nsec as i64)
+    #[allow(clippy::unnecessary_cast)] // time_t and c_long are i32 on 32-bit targets
+    let (sec, nsec) = (ts.tv_sec as i64, ts.tv_nsec as i64);
+    sec.saturating_mul(1_000_000_000).saturating_add(nsec)
 }
 
 #[cfg(test)]
