@@ -2,6 +2,7 @@
 
 pub mod dataset;
 pub mod eval;
+pub mod imu;
 
 use clap::{Parser, Subcommand};
 
@@ -19,6 +20,8 @@ pub enum Command {
     Dataset(dataset::DatasetArgs),
     /// Compare an estimated trajectory with ground truth (ATE, RPE, scale error).
     Eval(eval::EvalArgs),
+    /// Microstrain 3DM-GX4-25 IMU: decode and record MIP streams.
+    Imu(imu::ImuArgs),
 }
 
 /// Runs the parsed command line.
@@ -26,5 +29,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Dataset(a) => dataset::run(a),
         Command::Eval(args) => eval::run(&args),
+        Command::Imu(args) => imu::run(args),
     }
 }
