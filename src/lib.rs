@@ -8,4 +8,5 @@
 pub mod cli;
 pub mod dataset;
 pub mod geometry;
+pub mod output;
 pub mod time;
