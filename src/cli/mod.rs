@@ -2,6 +2,8 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod mavlink;
+
 /// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
 #[derive(Parser, Debug)]
 #[command(name = "vidslam", version, about, long_about = None)]
@@ -11,9 +13,14 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-pub enum Command {}
+pub enum Command {
+    /// MAVLink output to a flight controller (trajectory playback to test an FC setup).
+    Mavlink(mavlink::MavlinkArgs),
+}
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Mavlink(a) => mavlink::run(a),
+    }
 }
