@@ -12,5 +12,6 @@ pub mod eval;
 pub mod geometry;
 pub mod image;
 pub mod imu;
+pub mod output;
 pub mod time;
 pub mod tracking;

@@ -6,6 +6,8 @@ pub mod imu;
 
 use clap::{Parser, Subcommand};
 
+pub mod mavlink;
+
 /// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
 #[derive(Parser, Debug)]
 #[command(name = "vidslam", version, about, long_about = None)]
@@ -22,6 +24,8 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Microstrain 3DM-GX4-25 IMU: decode and record MIP streams.
     Imu(imu::ImuArgs),
+    /// MAVLink output to a flight controller (trajectory playback to test an FC setup).
+    Mavlink(mavlink::MavlinkArgs),
 }
 
 /// Runs the parsed command line.
@@ -30,5 +34,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(a) => dataset::run(a),
         Command::Eval(args) => eval::run(&args),
         Command::Imu(args) => imu::run(args),
+        Command::Mavlink(a) => mavlink::run(a),
     }
 }
