@@ -8,7 +8,9 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 
 /// Nanoseconds since an arbitrary epoch of the clock that produced it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
 #[serde(transparent)]
 pub struct TimeNs(pub i64);
 
@@ -70,7 +72,11 @@ impl TimeNs {
         {
             return None;
         }
-        let secs: i64 = if int_part.is_empty() { 0 } else { int_part.parse().ok()? };
+        let secs: i64 = if int_part.is_empty() {
+            0
+        } else {
+            int_part.parse().ok()?
+        };
         let mut frac_ns: i64 = 0;
         for (i, b) in frac_part.bytes().enumerate() {
             let d = (b - b'0') as i64;
@@ -93,10 +99,15 @@ impl TimeNs {
 /// suspend, never stepped by NTP). This is the "host monotonic" time base that live pipelines
 /// stamp samples with; it is the same clock as Python's `time.monotonic_ns()` on Linux.
 pub fn host_monotonic_now() -> TimeNs {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
     // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
     let rc = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     assert_eq!(rc, 0, "clock_gettime(CLOCK_MONOTONIC) failed");
+    // time_t / c_long are i32 on 32-bit ARM companion computers: the casts are not no-ops there.
+    #[allow(clippy::unnecessary_cast)]
     TimeNs(ts.tv_sec as i64 * TimeNs::NS_PER_S + ts.tv_nsec as i64)
 }
 
@@ -112,7 +123,13 @@ mod tests {
 
     #[test]
     fn secs_string_round_trip_is_exact() {
-        for ns in [0i64, 1, 999_999_999, 1_403_715_273_262_142_976, -1_500_000_001] {
+        for ns in [
+            0i64,
+            1,
+            999_999_999,
+            1_403_715_273_262_142_976,
+            -1_500_000_001,
+        ] {
             let t = TimeNs(ns);
             assert_eq!(TimeNs::parse_secs(&t.to_secs_string()), Some(t), "{ns}");
         }
@@ -124,7 +141,10 @@ mod tests {
         assert_eq!(TimeNs::parse_secs("-0.25"), Some(TimeNs(-250_000_000)));
         assert_eq!(TimeNs::parse_secs("3"), Some(TimeNs(3_000_000_000)));
         assert_eq!(TimeNs::parse_secs(".5"), Some(TimeNs(500_000_000)));
-        assert_eq!(TimeNs::parse_secs("1.0000000006"), Some(TimeNs(1_000_000_001)));
+        assert_eq!(
+            TimeNs::parse_secs("1.0000000006"),
+            Some(TimeNs(1_000_000_001))
+        );
         assert_eq!(TimeNs::parse_secs("1.4e0"), Some(TimeNs(1_400_000_000)));
         assert_eq!(TimeNs::parse_secs("abc"), None);
         assert_eq!(TimeNs::parse_secs(""), None);

@@ -49,11 +49,17 @@ impl std::str::FromStr for MountRpyDeg {
     fn from_str(s: &str) -> Result<Self, String> {
         let v: Vec<f64> = s
             .split(',')
-            .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
+            .map(|x| {
+                x.trim()
+                    .parse::<f64>()
+                    .map_err(|_| format!("'{x}' is not a number"))
+            })
             .collect::<Result<_, _>>()?;
         match v.as_slice() {
             [r, p, y] if v.iter().all(|a| a.is_finite()) => Ok(MountRpyDeg([*r, *p, *y])),
-            _ => Err(format!("expected three finite numbers 'roll,pitch,yaw' in degrees, got '{s}'")),
+            _ => Err(format!(
+                "expected three finite numbers 'roll,pitch,yaw' in degrees, got '{s}'"
+            )),
         }
     }
 }
@@ -117,11 +123,21 @@ pub struct PlayArgs {
     pub max_gap_s: f64,
     /// Treat output sample K (0-based, on the rate_hz grid) as following a discontinuity
     /// (reset_counter + 1). Repeatable or comma-separated.
-    #[arg(long, value_name = "K", value_delimiter = ',', help_heading = "Testing")]
+    #[arg(
+        long,
+        value_name = "K",
+        value_delimiter = ',',
+        help_heading = "Testing"
+    )]
     pub discontinuity_at: Vec<usize>,
     /// Replace output sample K's x position by NaN, to check that the sender drops it.
     /// Repeatable or comma-separated.
-    #[arg(long, value_name = "K", value_delimiter = ',', help_heading = "Testing")]
+    #[arg(
+        long,
+        value_name = "K",
+        value_delimiter = ',',
+        help_heading = "Testing"
+    )]
     pub inject_nan_at: Vec<usize>,
 }
 
@@ -160,12 +176,15 @@ pub fn playback_samples(traj: &Trajectory, rate_hz: f64, max_gap_ns: i64) -> Vec
         };
         let side = |dt_ns: i64| {
             let ts = TimeNs((t.0 + dt_ns).clamp(t_first.0, t_last.0));
-            traj.interpolate(ts, max_gap_ns).map_or((t, pose), |p| (ts, p))
+            traj.interpolate(ts, max_gap_ns)
+                .map_or((t, pose), |p| (ts, p))
         };
         let ((ta, pa), (tb, pb)) = (side(-half_ns), side(half_ns));
         let dt_s = tb.secs_since(ta);
         let (v, w) = if dt_s > 0.0 {
-            let dr = (pa.rotation.inverse() * pb.rotation).to_rotation_matrix().into_inner();
+            let dr = (pa.rotation.inverse() * pb.rotation)
+                .to_rotation_matrix()
+                .into_inner();
             (
                 (pb.translation.vector - pa.translation.vector) / dt_s,
                 log_so3(&dr) / dt_s,
@@ -253,7 +272,10 @@ fn play(a: &PlayArgs) -> anyhow::Result<()> {
         bail!("--max-gap-s must be > 0, got {}", a.max_gap_s);
     }
     if !(a.timesync_max_rtt_ms.is_finite() && a.timesync_max_rtt_ms > 0.0) {
-        bail!("--timesync-max-rtt-ms must be > 0, got {}", a.timesync_max_rtt_ms);
+        bail!(
+            "--timesync-max-rtt-ms must be > 0, got {}",
+            a.timesync_max_rtt_ms
+        );
     }
     let (traj, format) = Trajectory::read(&a.trajectory)?;
     let samples = playback_samples(&traj, a.rate_hz, (a.max_gap_s * 1e9).round() as i64);
@@ -270,7 +292,9 @@ fn play(a: &PlayArgs) -> anyhow::Result<()> {
         samples.len(),
         a.rate_hz,
         a.to,
-        sender.local_addr().map_or_else(|e| e.to_string(), |s| s.to_string()),
+        sender
+            .local_addr()
+            .map_or_else(|e| e.to_string(), |s| s.to_string()),
     );
     let t_host0 = host_monotonic_now();
     let mut epoch = 0u32;
@@ -345,8 +369,14 @@ mod tests {
         assert_eq!(s.len(), 26); // 0, 40, ..., 1000 ms
         assert_eq!(s[25].t_rel_ns, 1_000_000_000);
         for p in &s {
-            assert!((p.v_world_m_s - Vector3::new(1.0, 2.0, 0.0)).norm() < 1e-9, "{p:?}");
-            assert!((p.omega_body_rad_s - Vector3::new(0.0, 0.0, 0.5)).norm() < 1e-9, "{p:?}");
+            assert!(
+                (p.v_world_m_s - Vector3::new(1.0, 2.0, 0.0)).norm() < 1e-9,
+                "{p:?}"
+            );
+            assert!(
+                (p.omega_body_rad_s - Vector3::new(0.0, 0.0, 0.5)).norm() < 1e-9,
+                "{p:?}"
+            );
             assert!(!p.after_gap);
         }
     }
@@ -361,13 +391,19 @@ mod tests {
         assert_eq!(flagged, vec![23]);
         // Differences never straddle the gap.
         for p in &s {
-            assert!((p.v_world_m_s - Vector3::new(1.0, 2.0, 0.0)).norm() < 1e-9, "{p:?}");
+            assert!(
+                (p.v_world_m_s - Vector3::new(1.0, 2.0, 0.0)).norm() < 1e-9,
+                "{p:?}"
+            );
         }
     }
 
     #[test]
     fn mount_parses_degrees_and_rejects_garbage() {
-        assert_eq!("180,0,-90".parse::<MountRpyDeg>().unwrap(), MountRpyDeg([180.0, 0.0, -90.0]));
+        assert_eq!(
+            "180,0,-90".parse::<MountRpyDeg>().unwrap(),
+            MountRpyDeg([180.0, 0.0, -90.0])
+        );
         assert!("1,2".parse::<MountRpyDeg>().unwrap_err().contains("three"));
         assert!("a,2,3".parse::<MountRpyDeg>().unwrap_err().contains("'a'"));
     }

@@ -35,7 +35,11 @@ pub enum TrajectoryError {
         source: std::io::Error,
     },
     #[error("{path}:{line}: {msg}")]
-    Parse { path: PathBuf, line: usize, msg: String },
+    Parse {
+        path: PathBuf,
+        line: usize,
+        msg: String,
+    },
     #[error("{path}: no poses found")]
     Empty { path: PathBuf },
 }
@@ -62,7 +66,10 @@ impl Trajectory {
     /// Reads a TUM or EuRoC CSV file (detected), returning the format found too.
     /// Timestamps must be strictly increasing.
     pub fn read(path: &Path) -> Result<(Trajectory, TrajectoryFormat), TrajectoryError> {
-        let io = |source| TrajectoryError::Io { path: path.to_path_buf(), source };
+        let io = |source| TrajectoryError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
         let file = std::fs::File::open(path).map_err(io)?;
         let mut format = None;
         let mut poses: Vec<StampedPose> = Vec::new();
@@ -97,13 +104,18 @@ impl Trajectory {
         }
         match format {
             Some(f) if !poses.is_empty() => Ok((Trajectory { poses }, f)),
-            _ => Err(TrajectoryError::Empty { path: path.to_path_buf() }),
+            _ => Err(TrajectoryError::Empty {
+                path: path.to_path_buf(),
+            }),
         }
     }
 
     /// Writes the trajectory in `format`.
     pub fn write(&self, path: &Path, format: TrajectoryFormat) -> Result<(), TrajectoryError> {
-        let io = |source| TrajectoryError::Io { path: path.to_path_buf(), source };
+        let io = |source| TrajectoryError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
         let mut out = String::with_capacity(self.poses.len() * 96);
         match format {
             TrajectoryFormat::Tum => {
@@ -182,7 +194,10 @@ fn parse_line(s: &str, fmt: TrajectoryFormat) -> Result<StampedPose, String> {
         TrajectoryFormat::Tum => s.split_whitespace().collect(),
     };
     if fields.len() < 8 {
-        return Err(format!("expected at least 8 columns, found {}", fields.len()));
+        return Err(format!(
+            "expected at least 8 columns, found {}",
+            fields.len()
+        ));
     }
     if fmt == TrajectoryFormat::Tum && fields.len() != 8 {
         return Err(format!("TUM lines have 8 columns, found {}", fields.len()));
@@ -256,9 +271,10 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("vidslam-traj-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let tr = sample();
-        for (name, fmt) in
-            [("a.tum", TrajectoryFormat::Tum), ("b.csv", TrajectoryFormat::EurocCsv)]
-        {
+        for (name, fmt) in [
+            ("a.tum", TrajectoryFormat::Tum),
+            ("b.csv", TrajectoryFormat::EurocCsv),
+        ] {
             let path = dir.join(name);
             tr.write(&path, fmt).unwrap();
             let (back, found) = Trajectory::read(&path).unwrap();
@@ -275,10 +291,16 @@ mod tests {
         let path = dir.join("bad.tum");
         std::fs::write(&path, "# header\n1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n").unwrap();
         let msg = Trajectory::read(&path).unwrap_err().to_string();
-        assert!(msg.contains("bad.tum:3") && msg.contains("column 4"), "{msg}");
+        assert!(
+            msg.contains("bad.tum:3") && msg.contains("column 4"),
+            "{msg}"
+        );
         std::fs::write(&path, "1.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n").unwrap();
         let msg = Trajectory::read(&path).unwrap_err().to_string();
-        assert!(msg.contains("bad.tum:2") && msg.contains("not after"), "{msg}");
+        assert!(
+            msg.contains("bad.tum:2") && msg.contains("not after"),
+            "{msg}"
+        );
         std::fs::write(&path, "1,0,0,0,0.2,0,0,0\n").unwrap();
         let msg = Trajectory::read(&path).unwrap_err().to_string();
         assert!(msg.contains("bad.tum:1") && msg.contains("norm"), "{msg}");

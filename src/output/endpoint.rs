@@ -45,13 +45,22 @@ impl FromStr for Endpoint {
     type Err = EndpointError;
 
     fn from_str(text: &str) -> Result<Self, Self::Err> {
-        let err = |msg: &str| EndpointError::Syntax { text: text.to_string(), msg: msg.to_string() };
-        let (scheme, rest) = text.split_once(':').ok_or_else(|| err("no ':' after the scheme"))?;
-        let (host, port) = rest.rsplit_once(':').ok_or_else(|| err("missing ':PORT'"))?;
+        let err = |msg: &str| EndpointError::Syntax {
+            text: text.to_string(),
+            msg: msg.to_string(),
+        };
+        let (scheme, rest) = text
+            .split_once(':')
+            .ok_or_else(|| err("no ':' after the scheme"))?;
+        let (host, port) = rest
+            .rsplit_once(':')
+            .ok_or_else(|| err("missing ':PORT'"))?;
         if host.is_empty() {
             return Err(err("empty HOST"));
         }
-        let port: u16 = port.parse().map_err(|_| err(&format!("port '{port}' is not 1-65535")))?;
+        let port: u16 = port
+            .parse()
+            .map_err(|_| err(&format!("port '{port}' is not 1-65535")))?;
         if port == 0 {
             return Err(err("port 0 is not a destination"));
         }
@@ -87,10 +96,20 @@ impl Endpoint {
             Endpoint::UdpOut { host, port } | Endpoint::UdpIn { host, port } => (host, *port),
         };
         let bare = host.trim_start_matches('[').trim_end_matches(']');
-        let resolve_err = |source| EndpointError::Resolve { endpoint: self.to_string(), source };
-        (bare, port).to_socket_addrs().map_err(resolve_err)?.next().ok_or_else(|| {
-            resolve_err(std::io::Error::new(std::io::ErrorKind::NotFound, "no address"))
-        })
+        let resolve_err = |source| EndpointError::Resolve {
+            endpoint: self.to_string(),
+            source,
+        };
+        (bare, port)
+            .to_socket_addrs()
+            .map_err(resolve_err)?
+            .next()
+            .ok_or_else(|| {
+                resolve_err(std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    "no address",
+                ))
+            })
     }
 
     /// Resolves the host and opens the socket.
@@ -110,9 +129,15 @@ impl Endpoint {
                 } else {
                     (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
                 };
-                Ok(OpenEndpoint { socket: bind(any)?, fixed_peer: Some(addr) })
+                Ok(OpenEndpoint {
+                    socket: bind(any)?,
+                    fixed_peer: Some(addr),
+                })
             }
-            Endpoint::UdpIn { .. } => Ok(OpenEndpoint { socket: bind(addr)?, fixed_peer: None }),
+            Endpoint::UdpIn { .. } => Ok(OpenEndpoint {
+                socket: bind(addr)?,
+                fixed_peer: None,
+            }),
         }
     }
 }
@@ -125,13 +150,28 @@ mod tests {
     fn parses_router_style_endpoints() {
         assert_eq!(
             "udpout:127.0.0.1:14550".parse::<Endpoint>().unwrap(),
-            Endpoint::UdpOut { host: "127.0.0.1".into(), port: 14550 }
+            Endpoint::UdpOut {
+                host: "127.0.0.1".into(),
+                port: 14550
+            }
         );
         let e: Endpoint = "udpin:0.0.0.0:14540".parse().unwrap();
-        assert_eq!(e, Endpoint::UdpIn { host: "0.0.0.0".into(), port: 14540 });
+        assert_eq!(
+            e,
+            Endpoint::UdpIn {
+                host: "0.0.0.0".into(),
+                port: 14540
+            }
+        );
         assert_eq!(e.to_string(), "udpin:0.0.0.0:14540");
         let v6: Endpoint = "udpout:[::1]:14550".parse().unwrap();
-        assert_eq!(v6, Endpoint::UdpOut { host: "[::1]".into(), port: 14550 });
+        assert_eq!(
+            v6,
+            Endpoint::UdpOut {
+                host: "[::1]".into(),
+                port: 14550
+            }
+        );
     }
 
     #[test]
@@ -157,9 +197,15 @@ mod tests {
         // udpin on a port that is taken fails with an error naming the endpoint and the cause.
         let taken = UdpSocket::bind("127.0.0.1:0").unwrap();
         let port = taken.local_addr().unwrap().port();
-        let i = Endpoint::UdpIn { host: "127.0.0.1".into(), port };
+        let i = Endpoint::UdpIn {
+            host: "127.0.0.1".into(),
+            port,
+        };
         let msg = i.open().unwrap_err().to_string();
-        assert!(msg.contains(&format!("udpin:127.0.0.1:{port}")) && msg.contains("cannot open"), "{msg}");
+        assert!(
+            msg.contains(&format!("udpin:127.0.0.1:{port}")) && msg.contains("cannot open"),
+            "{msg}"
+        );
         drop(taken);
     }
 }

@@ -60,7 +60,8 @@ pub fn pose_covariance_from_body_perturbation(
     cov_p_world_theta_body: &Matrix6<f64>,
 ) -> PoseCovariance {
     let mut j = Matrix6::identity();
-    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&r_world_body.to_rotation_matrix().into_inner());
+    j.fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&r_world_body.to_rotation_matrix().into_inner());
     j * cov_p_world_theta_body * j.transpose()
 }
 
@@ -92,7 +93,9 @@ pub struct FcState {
 impl FcFrames {
     /// Mounting given as the rotation `r_fcbody_imu = Rz(yaw) * Ry(pitch) * Rx(roll)`.
     pub fn from_mount_rpy_rad(roll_rad: f64, pitch_rad: f64, yaw_rad: f64) -> Self {
-        FcFrames { r_fcbody_imu: UnitQuaternion::from_euler_angles(roll_rad, pitch_rad, yaw_rad) }
+        FcFrames {
+            r_fcbody_imu: UnitQuaternion::from_euler_angles(roll_rad, pitch_rad, yaw_rad),
+        }
     }
 
     /// Converts a world/IMU pose, world velocity and IMU angular rate into the FC's frames.
@@ -147,7 +150,9 @@ impl FcFrames {
         r_world_imu: &UnitQuaternion<f64>,
         cov_world: &Matrix3<f64>,
     ) -> Matrix3<f64> {
-        let r = (self.r_fcbody_imu * r_world_imu.inverse()).to_rotation_matrix().into_inner();
+        let r = (self.r_fcbody_imu * r_world_imu.inverse())
+            .to_rotation_matrix()
+            .into_inner();
         r * cov_world * r.transpose()
     }
 
@@ -190,8 +195,16 @@ mod tests {
     fn level_flu_imu_gives_identity_attitude_and_z_down() {
         // Default mount (FLU IMU) at rest, level, 1 m up, 2 m along world x.
         let f = FcFrames::default();
-        let s = f.to_fc(&iso([2.0, 0.5, 1.0], [0.0; 3]), &Vector3::zeros(), &Vector3::zeros());
-        assert!(close(&s.p_local_m, &Vector3::new(2.0, -0.5, -1.0)), "{:?}", s.p_local_m);
+        let s = f.to_fc(
+            &iso([2.0, 0.5, 1.0], [0.0; 3]),
+            &Vector3::zeros(),
+            &Vector3::zeros(),
+        );
+        assert!(
+            close(&s.p_local_m, &Vector3::new(2.0, -0.5, -1.0)),
+            "{:?}",
+            s.p_local_m
+        );
         assert!(s.q_local_fcbody.angle() < 1e-12, "{:?}", s.q_local_fcbody);
     }
 
@@ -209,8 +222,16 @@ mod tests {
         let (roll, pitch, yaw) = s.q_local_fcbody.euler_angles();
         assert!(roll.abs() < 1e-12 && pitch.abs() < 1e-12, "{roll} {pitch}");
         assert!((yaw + FRAC_PI_2).abs() < 1e-12, "yaw {yaw}");
-        assert!(close(&s.v_fcbody_m_s, &Vector3::new(1.0, 0.0, 0.0)), "{:?}", s.v_fcbody_m_s);
-        assert!(close(&s.v_local_m_s, &Vector3::new(0.0, -1.0, 0.0)), "{:?}", s.v_local_m_s);
+        assert!(
+            close(&s.v_fcbody_m_s, &Vector3::new(1.0, 0.0, 0.0)),
+            "{:?}",
+            s.v_fcbody_m_s
+        );
+        assert!(
+            close(&s.v_local_m_s, &Vector3::new(0.0, -1.0, 0.0)),
+            "{:?}",
+            s.v_local_m_s
+        );
         assert!(close(&s.omega_fcbody_rad_s, &Vector3::new(0.0, 0.0, -0.3)));
     }
 
@@ -218,7 +239,11 @@ mod tests {
     fn known_rotation_pitch_nose_up_is_positive_fc_pitch() {
         // FLU IMU pitched nose up by 0.2 rad: rotation about the IMU's y (left) axis by -0.2.
         let f = FcFrames::default();
-        let s = f.to_fc(&iso([0.0; 3], [0.0, -0.2, 0.0]), &Vector3::zeros(), &Vector3::zeros());
+        let s = f.to_fc(
+            &iso([0.0; 3], [0.0, -0.2, 0.0]),
+            &Vector3::zeros(),
+            &Vector3::zeros(),
+        );
         let (roll, pitch, yaw) = s.q_local_fcbody.euler_angles();
         assert!((pitch - 0.2).abs() < 1e-12 && roll.abs() < 1e-12 && yaw.abs() < 1e-12);
     }
@@ -227,7 +252,11 @@ mod tests {
     fn identity_mount_is_frd_imu() {
         // An IMU mounted FRD (z down) sitting level has r_world_imu = 180 deg about x.
         let f = FcFrames::from_mount_rpy_rad(0.0, 0.0, 0.0);
-        let s = f.to_fc(&iso([0.0; 3], [PI, 0.0, 0.0]), &Vector3::zeros(), &Vector3::zeros());
+        let s = f.to_fc(
+            &iso([0.0; 3], [PI, 0.0, 0.0]),
+            &Vector3::zeros(),
+            &Vector3::zeros(),
+        );
         assert!(s.q_local_fcbody.angle() < 1e-12);
         let omega = Vector3::new(0.1, -0.2, 0.3);
         let s = f.to_fc(&Isometry3::identity(), &Vector3::zeros(), &omega);

@@ -92,19 +92,38 @@ mod tests {
     fn states_follow_health_and_time() {
         let mut m = HealthMonitor::new(2 * S);
         assert_eq!(m.state(TimeNs(0)), MavState::MAV_STATE_STANDBY);
-        m.on_sample(TimeNs(S), TrackingHealth::Tracking { quality_percent: 80 });
+        m.on_sample(
+            TimeNs(S),
+            TrackingHealth::Tracking {
+                quality_percent: 80,
+            },
+        );
         assert_eq!(m.state(TimeNs(S)), MavState::MAV_STATE_ACTIVE);
         m.on_sample(TimeNs(2 * S), TrackingHealth::Failed);
         m.on_sample(TimeNs(3 * S), TrackingHealth::Failed);
         assert_eq!(m.state(TimeNs(3 * S)), MavState::MAV_STATE_CRITICAL);
-        assert_eq!(m.state(TimeNs(4 * S)), MavState::MAV_STATE_FLIGHT_TERMINATION);
-        m.on_sample(TimeNs(4 * S), TrackingHealth::Tracking { quality_percent: 10 });
+        assert_eq!(
+            m.state(TimeNs(4 * S)),
+            MavState::MAV_STATE_FLIGHT_TERMINATION
+        );
+        m.on_sample(
+            TimeNs(4 * S),
+            TrackingHealth::Tracking {
+                quality_percent: 10,
+            },
+        );
         assert_eq!(m.state(TimeNs(4 * S)), MavState::MAV_STATE_ACTIVE);
         // Stalled estimator: no sample for terminate_after.
         assert_eq!(m.state(TimeNs(6 * S - 1)), MavState::MAV_STATE_ACTIVE);
-        assert_eq!(m.state(TimeNs(6 * S)), MavState::MAV_STATE_FLIGHT_TERMINATION);
+        assert_eq!(
+            m.state(TimeNs(6 * S)),
+            MavState::MAV_STATE_FLIGHT_TERMINATION
+        );
         m.on_shutdown();
-        assert_eq!(m.state(TimeNs(4 * S)), MavState::MAV_STATE_FLIGHT_TERMINATION);
+        assert_eq!(
+            m.state(TimeNs(4 * S)),
+            MavState::MAV_STATE_FLIGHT_TERMINATION
+        );
     }
 
     #[test]

@@ -63,7 +63,8 @@ impl Link {
     }
 
     fn peer(&self) -> Option<SocketAddr> {
-        self.fixed_peer.or(*self.learned_peer.lock().unwrap_or_else(|e| e.into_inner()))
+        self.fixed_peer
+            .or(*self.learned_peer.lock().unwrap_or_else(|e| e.into_inner()))
     }
 
     /// Frames `msg` as MAVLink 2 and sends it as one datagram.
@@ -91,7 +92,12 @@ impl Link {
                 }
                 Ok(Some((n, from)))
             }
-            Err(e) if matches!(e.kind(), io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut) => {
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                ) =>
+            {
                 Ok(None)
             }
             Err(e) => Err(e),
@@ -132,14 +138,22 @@ mod tests {
 
     fn frame(seq: u8, msg: &MavMessage) -> Vec<u8> {
         let mut buf = Vec::new();
-        let h = MavHeader { system_id: 1, component_id: 1, sequence: seq };
+        let h = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: seq,
+        };
         mavlink::write_v2_msg(&mut buf, h, msg).unwrap();
         buf
     }
 
     #[test]
     fn decodes_frames_and_counts_garbage() {
-        let ts = MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: 0, ts1: 42, ..Default::default() });
+        let ts = MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 42,
+            ..Default::default()
+        });
         let a = frame(7, &ts);
         let mut corrupt = frame(8, &ts);
         let last = corrupt.len() - 1;

@@ -98,32 +98,40 @@ impl MessageConfig {
     }
 
     fn velocity_covariance_world(&self, s: &OdometrySample) -> Option<Matrix3<f64>> {
-        s.velocity_covariance
-            .or_else(|| self.covariance.velocity_std_m_s.map(|v| Matrix3::identity() * (v * v)))
+        s.velocity_covariance.or_else(|| {
+            self.covariance
+                .velocity_std_m_s
+                .map(|v| Matrix3::identity() * (v * v))
+        })
     }
 
     /// ODOMETRY for one sample.
     pub fn odometry(&self, s: &OdometrySample, stamp: WireStamp) -> ODOMETRY_DATA {
-        let fc =
-            self.frames.to_fc(&s.t_world_body, &s.v_world_m_s, &s.omega_body_rad_s);
+        let fc = self
+            .frames
+            .to_fc(&s.t_world_body, &s.v_world_m_s, &s.omega_body_rad_s);
         let q = fc.q_local_fcbody;
         let pose_covariance = match self.pose_covariance_local(s) {
             Some(c) => to_f32(upper_triangle_21(&c)),
             None => unknown(),
         };
-        let velocity_covariance =
-            match (self.velocity_covariance_world(s), self.covariance.angular_rate_std_rad_s) {
-                (Some(cv), Some(w)) => {
-                    let body = self.frames.velocity_covariance_to_fcbody(&s.t_world_body.rotation, &cv);
-                    let mut c = Matrix6::zeros();
-                    c.fixed_view_mut::<3, 3>(0, 0).copy_from(&body);
-                    for k in 3..6 {
-                        c[(k, k)] = w * w;
-                    }
-                    to_f32(upper_triangle_21(&c))
+        let velocity_covariance = match (
+            self.velocity_covariance_world(s),
+            self.covariance.angular_rate_std_rad_s,
+        ) {
+            (Some(cv), Some(w)) => {
+                let body = self
+                    .frames
+                    .velocity_covariance_to_fcbody(&s.t_world_body.rotation, &cv);
+                let mut c = Matrix6::zeros();
+                c.fixed_view_mut::<3, 3>(0, 0).copy_from(&body);
+                for k in 3..6 {
+                    c[(k, k)] = w * w;
                 }
-                _ => unknown(),
-            };
+                to_f32(upper_triangle_21(&c))
+            }
+            _ => unknown(),
+        };
         ODOMETRY_DATA {
             time_usec: stamp.time_usec,
             x: fc.p_local_m.x as f32,
@@ -156,7 +164,9 @@ impl MessageConfig {
         s: &OdometrySample,
         stamp: WireStamp,
     ) -> VISION_POSITION_ESTIMATE_DATA {
-        let fc = self.frames.to_fc(&s.t_world_body, &s.v_world_m_s, &s.omega_body_rad_s);
+        let fc = self
+            .frames
+            .to_fc(&s.t_world_body, &s.v_world_m_s, &s.omega_body_rad_s);
         let (roll, pitch, yaw) = fc.q_local_fcbody.euler_angles();
         VISION_POSITION_ESTIMATE_DATA {
             usec: stamp.time_usec,
@@ -176,7 +186,9 @@ impl MessageConfig {
 
     /// VISION_SPEED_ESTIMATE (velocity in the local frame; full 3x3 row-major covariance).
     pub fn vision_speed(&self, s: &OdometrySample, stamp: WireStamp) -> VISION_SPEED_ESTIMATE_DATA {
-        let fc = self.frames.to_fc(&s.t_world_body, &s.v_world_m_s, &s.omega_body_rad_s);
+        let fc = self
+            .frames
+            .to_fc(&s.t_world_body, &s.v_world_m_s, &s.omega_body_rad_s);
         let covariance = match self.velocity_covariance_world(s) {
             Some(cv) => {
                 let l = self.frames.velocity_covariance_to_local(&cv);
@@ -224,15 +236,27 @@ fn covariance_ok(a: &[f32]) -> bool {
 pub fn is_wire_finite(m: &MavMessage) -> bool {
     match m {
         MavMessage::ODOMETRY(o) => {
-            [o.x, o.y, o.z, o.vx, o.vy, o.vz, o.rollspeed, o.pitchspeed, o.yawspeed]
-                .iter()
-                .chain(o.q.iter())
-                .all(|v| v.is_finite())
+            [
+                o.x,
+                o.y,
+                o.z,
+                o.vx,
+                o.vy,
+                o.vz,
+                o.rollspeed,
+                o.pitchspeed,
+                o.yawspeed,
+            ]
+            .iter()
+            .chain(o.q.iter())
+            .all(|v| v.is_finite())
                 && covariance_ok(&o.pose_covariance)
                 && covariance_ok(&o.velocity_covariance)
         }
         MavMessage::VISION_POSITION_ESTIMATE(v) => {
-            [v.x, v.y, v.z, v.roll, v.pitch, v.yaw].iter().all(|v| v.is_finite())
+            [v.x, v.y, v.z, v.roll, v.pitch, v.yaw]
+                .iter()
+                .all(|v| v.is_finite())
                 && covariance_ok(&v.covariance)
         }
         MavMessage::VISION_SPEED_ESTIMATE(v) => {
@@ -258,7 +282,11 @@ mod tests {
         )
     }
 
-    const STAMP: WireStamp = WireStamp { time_usec: 5_000_000, reset_counter: 3, quality: 77 };
+    const STAMP: WireStamp = WireStamp {
+        time_usec: 5_000_000,
+        reset_counter: 3,
+        quality: 77,
+    };
 
     #[test]
     fn odometry_fields_and_unknown_covariance() {
@@ -278,8 +306,14 @@ mod tests {
         assert!(o.pose_covariance[0].is_nan() && o.pose_covariance[1..].iter().all(|&v| v == 0.0));
         assert!(o.velocity_covariance[0].is_nan());
         assert!(is_wire_finite(&MavMessage::ODOMETRY(o)));
-        let ned = MessageConfig { local_frame: LocalFrame::Ned, ..cfg };
-        assert_eq!(ned.odometry(&sample(), STAMP).frame_id, MavFrame::MAV_FRAME_LOCAL_NED);
+        let ned = MessageConfig {
+            local_frame: LocalFrame::Ned,
+            ..cfg
+        };
+        assert_eq!(
+            ned.odometry(&sample(), STAMP).frame_id,
+            MavFrame::MAV_FRAME_LOCAL_NED
+        );
     }
 
     #[test]
@@ -296,9 +330,15 @@ mod tests {
         let o = cfg.odometry(&sample(), STAMP);
         let diag = |a: &[f32; 21]| [0, 6, 11, 15, 18, 20].map(|k| a[k]);
         let pd = diag(&o.pose_covariance);
-        assert!((pd[0] - 0.01).abs() < 1e-9 && (pd[5] - 0.0004).abs() < 1e-9, "{pd:?}");
+        assert!(
+            (pd[0] - 0.01).abs() < 1e-9 && (pd[5] - 0.0004).abs() < 1e-9,
+            "{pd:?}"
+        );
         let vd = diag(&o.velocity_covariance);
-        assert!((vd[2] - 0.09).abs() < 1e-7 && (vd[3] - 1e-4).abs() < 1e-9, "{vd:?}");
+        assert!(
+            (vd[2] - 0.09).abs() < 1e-7 && (vd[3] - 1e-4).abs() < 1e-9,
+            "{vd:?}"
+        );
         // An estimator covariance wins over the fallback.
         let mut s = sample();
         let mut c = Matrix6::zeros();
@@ -311,20 +351,31 @@ mod tests {
 
     #[test]
     fn legacy_pair_and_failed_quality() {
-        let cfg = MessageConfig { message_set: MessageSet::Legacy, ..Default::default() };
+        let cfg = MessageConfig {
+            message_set: MessageSet::Legacy,
+            ..Default::default()
+        };
         let msgs = cfg.messages(&sample(), STAMP).unwrap();
         let (MavMessage::VISION_POSITION_ESTIMATE(p), MavMessage::VISION_SPEED_ESTIMATE(v)) =
             (&msgs[0], &msgs[1])
         else {
             panic!("{msgs:?}")
         };
-        assert_eq!((p.x, p.y, p.z, p.usec, p.reset_counter), (1.0, -2.0, -3.0, 5_000_000, 3));
+        assert_eq!(
+            (p.x, p.y, p.z, p.usec, p.reset_counter),
+            (1.0, -2.0, -3.0, 5_000_000, 3)
+        );
         assert!((p.yaw + 0.5).abs() < 1e-6 && p.roll.abs() < 1e-6 && p.pitch.abs() < 1e-6);
         assert_eq!((v.x, v.y, v.z), (0.5, 0.0, 0.1));
         assert!(v.covariance[0].is_nan() && p.covariance[0].is_nan());
-        let failed = WireStamp { quality: TrackingHealth::Failed.mavlink_quality(), ..STAMP };
+        let failed = WireStamp {
+            quality: TrackingHealth::Failed.mavlink_quality(),
+            ..STAMP
+        };
         assert!(cfg.messages(&sample(), failed).is_none());
-        let odo = MessageConfig::default().messages(&sample(), failed).unwrap();
+        let odo = MessageConfig::default()
+            .messages(&sample(), failed)
+            .unwrap();
         assert!(matches!(&odo[0], MavMessage::ODOMETRY(o) if o.quality == -1));
     }
 

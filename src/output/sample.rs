@@ -63,7 +63,9 @@ impl OdometrySample {
             omega_body_rad_s,
             pose_covariance: None,
             velocity_covariance: None,
-            health: TrackingHealth::Tracking { quality_percent: 100 },
+            health: TrackingHealth::Tracking {
+                quality_percent: 100,
+            },
             reset_epoch: 0,
         }
     }
@@ -75,8 +77,12 @@ impl OdometrySample {
             && iso.rotation.coords.iter().all(|v| v.is_finite())
             && self.v_world_m_s.iter().all(|v| v.is_finite())
             && self.omega_body_rad_s.iter().all(|v| v.is_finite())
-            && self.pose_covariance.is_none_or(|c| c.iter().all(|v| v.is_finite()))
-            && self.velocity_covariance.is_none_or(|c| c.iter().all(|v| v.is_finite()))
+            && self
+                .pose_covariance
+                .is_none_or(|c| c.iter().all(|v| v.is_finite()))
+            && self
+                .velocity_covariance
+                .is_none_or(|c| c.iter().all(|v| v.is_finite()))
     }
 }
 
@@ -109,7 +115,19 @@ mod tests {
     #[test]
     fn quality_mapping() {
         assert_eq!(TrackingHealth::Failed.mavlink_quality(), -1);
-        assert_eq!(TrackingHealth::Tracking { quality_percent: 42 }.mavlink_quality(), 42);
-        assert_eq!(TrackingHealth::Tracking { quality_percent: 250 }.mavlink_quality(), 100);
+        assert_eq!(
+            TrackingHealth::Tracking {
+                quality_percent: 42
+            }
+            .mavlink_quality(),
+            42
+        );
+        assert_eq!(
+            TrackingHealth::Tracking {
+                quality_percent: 250
+            }
+            .mavlink_quality(),
+            100
+        );
     }
 }

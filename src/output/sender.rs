@@ -14,13 +14,13 @@
 //! timestamps, increments `reset_counter` whenever [`OdometrySample::reset_epoch`] changes, and
 //! stamps `time_usec` in the configured [`TimeBase`].
 
+use crate::output::OutputError;
 use crate::output::endpoint::Endpoint;
 use crate::output::heartbeat::{HealthMonitor, heartbeat};
 use crate::output::link::{Link, Sent, decode_datagram};
 use crate::output::odometry::{MessageConfig, MessageSet, WireStamp};
 use crate::output::sample::{OdometrySample, TrackingHealth};
 use crate::output::timesync::{ReplyVerdict, TimeOffsetEstimator, reply_to, request};
-use crate::output::OutputError;
 use crate::time::host_monotonic_now;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError, bounded};
 use mavlink::dialects::common::MavMessage;
@@ -94,7 +94,10 @@ impl SenderConfig {
             return bad(format!("rate_hz must be > 0, got {}", self.rate_hz));
         }
         if !(self.timesync_request_hz.is_finite() && self.timesync_request_hz > 0.0) {
-            return bad(format!("timesync_request_hz must be > 0, got {}", self.timesync_request_hz));
+            return bad(format!(
+                "timesync_request_hz must be > 0, got {}",
+                self.timesync_request_hz
+            ));
         }
         if self.queue_capacity == 0 {
             return bad("queue_capacity must be >= 1".into());
@@ -196,7 +199,10 @@ impl Shared {
             Ok(Sent::NoPeer) => Err(SendFail::NoPeer),
             Err(e) => {
                 inc(&self.counters.send_errors);
-                *self.last_send_error.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.to_string());
+                *self
+                    .last_send_error
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner()) = Some(e.to_string());
                 Err(SendFail::Socket)
             }
         }
@@ -259,7 +265,12 @@ struct Pacer {
 impl Pacer {
     fn new(rate_hz: f64) -> Self {
         let period_ns = (1e9 / rate_hz).round().max(1.0) as i64;
-        Pacer { period_ns, tolerance_ns: period_ns / 4, next_due_ns: None, last_ns: i64::MIN }
+        Pacer {
+            period_ns,
+            tolerance_ns: period_ns / 4,
+            next_due_ns: None,
+            last_ns: i64::MIN,
+        }
     }
 
     fn admit(&mut self, t_ns: i64) -> bool {
@@ -267,8 +278,11 @@ impl Pacer {
             Some(due) if t_ns >= self.last_ns && t_ns + self.tolerance_ns < due => false,
             Some(due) if t_ns >= self.last_ns => {
                 let next = due + self.period_ns;
-                self.next_due_ns =
-                    Some(if t_ns + self.tolerance_ns >= next { t_ns + self.period_ns } else { next });
+                self.next_due_ns = Some(if t_ns + self.tolerance_ns >= next {
+                    t_ns + self.period_ns
+                } else {
+                    next
+                });
                 true
             }
             // First sample, or time went backwards: re-anchor.
@@ -303,7 +317,11 @@ impl MavlinkSender {
         let endpoint_text = config.endpoint.to_string();
         let io_err = |what: &'static str| {
             let endpoint = endpoint_text.clone();
-            move |source| OutputError::Io { endpoint, what, source }
+            move |source| OutputError::Io {
+                endpoint,
+                what,
+                source,
+            }
         };
         let link = Link::new(
             open,
@@ -353,7 +371,8 @@ impl MavlinkSender {
         inc(&c.samples_in);
         match self.queue.as_ref().map(|q| q.push(sample)) {
             Some(Pushed::Queued { dropped_oldest }) => {
-                c.dropped_queue_full.fetch_add(dropped_oldest, Ordering::Relaxed);
+                c.dropped_queue_full
+                    .fetch_add(dropped_oldest, Ordering::Relaxed);
             }
             Some(Pushed::ConsumerGone) | None => inc(&c.dropped_sender_gone),
         }
@@ -377,7 +396,11 @@ impl MavlinkSender {
 
     /// The last socket error message, if any send failed.
     pub fn last_send_error(&self) -> Option<String> {
-        self.shared.last_send_error.lock().unwrap_or_else(|p| p.into_inner()).clone()
+        self.shared
+            .last_send_error
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 
     /// A snapshot of the counters.
@@ -467,7 +490,11 @@ fn send_loop(shared: &Shared, cfg: &SenderConfig, rx: &Receiver<OdometrySample>)
             }
             next_request = next_request.add_ns(timesync_period_ns).max(now);
         }
-        let deadline = if requests { next_heartbeat.min(next_request) } else { next_heartbeat };
+        let deadline = if requests {
+            next_heartbeat.min(next_request)
+        } else {
+            next_heartbeat
+        };
         let wait = Duration::from_nanos(deadline.ns_since(host_monotonic_now()).max(0) as u64);
         let s = match rx.recv_timeout(wait) {
             Ok(s) => s,
@@ -484,14 +511,19 @@ fn send_loop(shared: &Shared, cfg: &SenderConfig, rx: &Receiver<OdometrySample>)
         health.on_sample(arrived, s.health);
         if last_epoch.is_some_and(|e| e != s.reset_epoch) {
             reset_counter = reset_counter.wrapping_add(1);
-            c.reset_counter.store(i64::from(reset_counter), Ordering::Relaxed);
+            c.reset_counter
+                .store(i64::from(reset_counter), Ordering::Relaxed);
         }
         last_epoch = Some(s.reset_epoch);
         if !pacer.admit(s.t.0) {
             inc(&c.decimated);
             continue;
         }
-        let quality = if after_invalid { -1 } else { s.health.mavlink_quality() };
+        let quality = if after_invalid {
+            -1
+        } else {
+            s.health.mavlink_quality()
+        };
         after_invalid = false;
         let offset_ns = match cfg.time_base {
             TimeBase::Companion => 0,
@@ -505,7 +537,11 @@ fn send_loop(shared: &Shared, cfg: &SenderConfig, rx: &Receiver<OdometrySample>)
             inc(&c.failed_not_sent);
             continue;
         }
-        let stamp = WireStamp { time_usec, reset_counter, quality };
+        let stamp = WireStamp {
+            time_usec,
+            reset_counter,
+            quality,
+        };
         let Some(msgs) = cfg.messages.messages(&s, stamp) else {
             inc(&c.dropped_non_finite);
             continue;
@@ -541,10 +577,13 @@ fn receive_loop(shared: &Shared, fc_component: u8) {
         let t_receive = host_monotonic_now();
         inc(&c.rx_datagrams);
         let (msgs, skipped) = decode_datagram(&buf[..n]);
-        c.rx_bytes_skipped.fetch_add(skipped as u64, Ordering::Relaxed);
+        c.rx_bytes_skipped
+            .fetch_add(skipped as u64, Ordering::Relaxed);
         for (header, msg) in msgs {
             inc(&c.rx_messages);
-            let MavMessage::TIMESYNC(ts) = msg else { continue };
+            let MavMessage::TIMESYNC(ts) = msg else {
+                continue;
+            };
             if ts.tc1 == 0 {
                 if let Some(r) = reply_to(&ts, &header, &own, host_monotonic_now())
                     && shared.send(&MavMessage::TIMESYNC(r)).is_ok()
@@ -655,7 +694,11 @@ mod tests {
             })
             .collect();
         let xs: Vec<f32> = odo.iter().map(|o| o.x).collect();
-        assert_eq!(xs, vec![0.0, 1.0, 3.0, 4.0, 5.0], "the NaN pose never reaches the wire");
+        assert_eq!(
+            xs,
+            vec![0.0, 1.0, 3.0, 4.0, 5.0],
+            "the NaN pose never reaches the wire"
+        );
         let quality: Vec<i8> = odo.iter().map(|o| o.quality).collect();
         assert_eq!(quality, vec![100, 100, -1, 100, 100]);
         let resets: Vec<u8> = odo.iter().map(|o| o.reset_counter).collect();
@@ -679,7 +722,10 @@ mod tests {
             })
             .collect();
         assert_eq!(states.len() as u64, stats.heartbeats_sent);
-        assert_eq!(states.first(), Some(&mavlink::dialects::common::MavState::MAV_STATE_STANDBY));
+        assert_eq!(
+            states.first(),
+            Some(&mavlink::dialects::common::MavState::MAV_STATE_STANDBY)
+        );
         assert_eq!(
             states.last(),
             Some(&mavlink::dialects::common::MavState::MAV_STATE_FLIGHT_TERMINATION)
@@ -703,8 +749,16 @@ mod tests {
         // Only so that a missing reply fails the test instead of hanging it.
         fc.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
         let mut buf = Vec::new();
-        let req = mavlink::dialects::common::TIMESYNC_DATA { tc1: 0, ts1: 777, ..Default::default() };
-        let h = mavlink::MavHeader { system_id: 1, component_id: 1, sequence: 0 };
+        let req = mavlink::dialects::common::TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 777,
+            ..Default::default()
+        };
+        let h = mavlink::MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 0,
+        };
         mavlink::write_v2_msg(&mut buf, h, &MavMessage::TIMESYNC(req)).unwrap();
         buf.extend_from_slice(b"\xfd\x00garbage");
         fc.send_to(&buf, ("127.0.0.1", port)).unwrap();

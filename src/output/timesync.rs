@@ -39,7 +39,12 @@ pub fn reply_to(
 
 /// A request stamped `now`, addressed to the FC (`target_system`, `target_component`).
 pub fn request(now: TimeNs, target_system: u8, target_component: u8) -> TIMESYNC_DATA {
-    TIMESYNC_DATA { tc1: 0, ts1: now.0, target_system, target_component }
+    TIMESYNC_DATA {
+        tc1: 0,
+        ts1: now.0,
+        target_system,
+        target_component,
+    }
 }
 
 /// What became of one reply.
@@ -132,7 +137,10 @@ impl TimeOffsetEstimator {
         if self.window.len() < self.min_samples {
             return None;
         }
-        self.window.iter().min_by_key(|(rtt, _)| *rtt).map(|&(_, off)| off)
+        self.window
+            .iter()
+            .min_by_key(|(rtt, _)| *rtt)
+            .map(|&(_, off)| off)
     }
 }
 
@@ -143,7 +151,11 @@ mod tests {
     const MS: i64 = 1_000_000;
 
     fn hdr(system_id: u32, component_id: u8) -> MavHeader {
-        MavHeader { system_id, component_id, sequence: 0 }
+        MavHeader {
+            system_id,
+            component_id,
+            sequence: 0,
+        }
     }
 
     #[test]
@@ -152,10 +164,20 @@ mod tests {
         let fc = hdr(1, 1);
         let req = request(TimeNs(123), 0, 0);
         let r = reply_to(&req, &fc, &own, TimeNs(999)).unwrap();
-        assert_eq!((r.tc1, r.ts1, r.target_system, r.target_component), (999, 123, 1, 1));
-        let to_other = TIMESYNC_DATA { target_component: 191, ..req };
+        assert_eq!(
+            (r.tc1, r.ts1, r.target_system, r.target_component),
+            (999, 123, 1, 1)
+        );
+        let to_other = TIMESYNC_DATA {
+            target_component: 191,
+            ..req
+        };
         assert!(reply_to(&to_other, &fc, &own, TimeNs(999)).is_none());
-        let to_us = TIMESYNC_DATA { target_system: 1, target_component: 197, ..req };
+        let to_us = TIMESYNC_DATA {
+            target_system: 1,
+            target_component: 197,
+            ..req
+        };
         assert!(reply_to(&to_us, &fc, &own, TimeNs(999)).is_some());
         // A reply is not a request.
         assert!(reply_to(&r, &fc, &own, TimeNs(1000)).is_none());
@@ -163,7 +185,13 @@ mod tests {
 
     /// Simulates requests at `t`, a reply `d_up` later from an FC clock `offset` ahead, received
     /// `d_down` after that.
-    fn exchange(e: &mut TimeOffsetEstimator, t: i64, offset: i64, d_up: i64, d_down: i64) -> ReplyVerdict {
+    fn exchange(
+        e: &mut TimeOffsetEstimator,
+        t: i64,
+        offset: i64,
+        d_up: i64,
+        d_down: i64,
+    ) -> ReplyVerdict {
         e.on_request_sent(t);
         e.on_reply(t, t + d_up + offset, TimeNs(t + d_up + d_down))
     }
@@ -172,7 +200,13 @@ mod tests {
     fn converges_to_the_min_rtt_offset() {
         let offset = 1_000_000 * MS + 123_456; // FC ahead by 1000 s
         let mut e = TimeOffsetEstimator::new(10 * MS, 3);
-        assert_eq!(exchange(&mut e, 0, offset, MS, MS), ReplyVerdict::Accepted { offset_ns: offset, rtt_ns: 2 * MS });
+        assert_eq!(
+            exchange(&mut e, 0, offset, MS, MS),
+            ReplyVerdict::Accepted {
+                offset_ns: offset,
+                rtt_ns: 2 * MS
+            }
+        );
         assert_eq!(e.offset_ns(), None);
         // Asymmetric delays bias the sample by (up - down) / 2.
         exchange(&mut e, 100 * MS, offset, 3 * MS, MS);
@@ -185,11 +219,17 @@ mod tests {
     #[test]
     fn rejects_high_rtt_and_foreign_replies() {
         let mut e = TimeOffsetEstimator::new(10 * MS, 1);
-        assert_eq!(exchange(&mut e, 0, 5, 6 * MS, 6 * MS), ReplyVerdict::RttTooHigh { rtt_ns: 12 * MS });
+        assert_eq!(
+            exchange(&mut e, 0, 5, 6 * MS, 6 * MS),
+            ReplyVerdict::RttTooHigh { rtt_ns: 12 * MS }
+        );
         assert_eq!(e.on_reply(777, 1, TimeNs(800)), ReplyVerdict::NotOurs);
         assert_eq!(e.offset_ns(), None);
         // A duplicate reply to an answered request is not used twice.
-        assert!(matches!(exchange(&mut e, 10, 5, 1, 1), ReplyVerdict::Accepted { .. }));
+        assert!(matches!(
+            exchange(&mut e, 10, 5, 1, 1),
+            ReplyVerdict::Accepted { .. }
+        ));
         assert_eq!(e.on_reply(10, 16, TimeNs(12)), ReplyVerdict::NotOurs);
     }
 
@@ -203,7 +243,11 @@ mod tests {
         // FC reboots: its clock now is 2 s behind ours.
         for k in 4..8 {
             exchange(&mut e, k * 100 * MS, -2000 * MS, MS, MS);
-            assert_eq!(e.offset_ns(), Some(50 * MS), "sample {k} must not move the estimate yet");
+            assert_eq!(
+                e.offset_ns(),
+                Some(50 * MS),
+                "sample {k} must not move the estimate yet"
+            );
         }
         exchange(&mut e, 800 * MS, -2000 * MS, MS, MS);
         assert_eq!(e.offset_ns(), None, "restarted, needs 2 samples");
