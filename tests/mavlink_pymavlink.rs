@@ -113,6 +113,7 @@ fn run_pair(name: &str, listener_args: &[&str], play_args: &[&str]) -> serde_jso
         .find_map(|l| l.strip_prefix("REPORT "))
         .unwrap_or_else(|| panic!("no REPORT from the listener: {rest}"));
     let report: serde_json::Value = serde_json::from_str(report_line).unwrap();
+    eprintln!("listener report ({name}): {report}");
     let failures = report["failures"].as_array().unwrap();
     assert!(
         status.success() && failures.is_empty(),

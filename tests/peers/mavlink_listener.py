@@ -281,10 +281,12 @@ def main():
 
     # Time base of each stamp: our CLOCK_MONOTONIC (companion) or the fake FC clock.
     bases = []
+    latencies_ns = []  # stamp to receipt, companion base: reported, not checked
     for t_rx, m in poses_rx:
         u_ns = usec_of(m) * 1000
         if abs(u_ns - t_rx) < SAME_CLOCK_TOL_NS:
             bases.append("companion")
+            latencies_ns.append(t_rx - u_ns)
         elif fc_offset_ns is not None and abs(u_ns - (t_rx + fc_offset_ns)) < SAME_CLOCK_TOL_NS:
             bases.append("fc")
         else:
@@ -385,6 +387,11 @@ def main():
         "timesync_requests_answered": answered_requests,
         "time_bases": {b: bases.count(b) for b in set(bases)},
         "reset_counters": sorted({m.reset_counter for _, m in poses_rx}),
+        "stamp_to_receipt_us": {
+            "median": sorted(latencies_ns)[len(latencies_ns) // 2] / 1000 if latencies_ns else None,
+            "max": max(latencies_ns) / 1000 if latencies_ns else None,
+        },
+        "pose_frame_bytes": len(poses_rx[0][1].get_msgbuf()) if poses_rx else None,
     }
     print("REPORT " + json.dumps(report), flush=True)
     sys.exit(0 if not c.failures else 1)
