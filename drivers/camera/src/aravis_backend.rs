@@ -19,8 +19,9 @@
 //! frame's `dropped_before`.
 //!
 //! # Loss and reconnection
-//! The device is declared lost when Aravis emits `control-lost` (GigE heartbeat failure) or
-//! when no frame arrived for `max(1 s, 10 frame periods)` and a feature read fails. `next_frame`
+//! The device is declared lost when Aravis emits `control-lost` (GigE heartbeat failure) or,
+//! in free-running mode, when no frame arrived for `max(1 s, 10 frame periods)` (in trigger
+//! mode silence is legitimate, so only the heartbeat counts). `next_frame`
 //! then returns [`CameraError::Lost`]; later calls reopen the device by name (at most one attempt
 //! per 500 ms), re-apply the configuration and restart acquisition, returning
 //! [`CameraError::Reconnecting`] until that works. The device clock model restarts too.
@@ -363,7 +364,10 @@ impl AravisCamera {
     fn declare_lost(&mut self, reason: String) -> CameraError {
         self.lost = true;
         self.stats.lost += 1;
-        self.close();
+        // Releasing a dead GigE device sends GVCP writes that each wait for their retries
+        // (seconds): let a helper thread do it so `next_frame` keeps its timeout.
+        let stale = (self.stream.take(), self.camera.take());
+        std::thread::spawn(move || drop(stale));
         CameraError::Lost {
             device: self.name.clone(),
             reason,
@@ -482,14 +486,17 @@ impl Camera for AravisCamera {
             let remaining = deadline.saturating_duration_since(Instant::now());
             let stream = self.stream.as_ref().expect("streaming implies a stream");
             let Some(buffer) = stream.timeout_pop_buffer(remaining.as_micros() as u64) else {
-                if self.last_frame_at.elapsed() >= self.lost_after() {
-                    // Silent for long: is the device still there?
-                    if let Err(e) = self.camera()?.string("DeviceModelName") {
-                        return Err(self.declare_lost(format!(
-                            "no frame for {:?} and the device does not answer: {e}",
-                            self.last_frame_at.elapsed()
-                        )));
-                    }
+                let silent = self.last_frame_at.elapsed();
+                if matches!(config.acquisition, Acquisition::FreeRunning { .. })
+                    && silent >= self.lost_after()
+                {
+                    // A free-running camera that stays silent this long is broken whether or not
+                    // its control channel answers; reopening is the recovery either way. (No
+                    // blocking probe here: a GVCP read of a dead device takes seconds.)
+                    return Err(self.declare_lost(format!(
+                        "no frame for {:.1} s in free-running mode",
+                        silent.as_secs_f64()
+                    )));
                 }
                 if Instant::now() >= deadline {
                     return Err(CameraError::Timeout {

@@ -101,8 +101,8 @@ pub struct FrameMeta {
     /// Timestamp on the device clock, as the device latched it (see
     /// [`crate::TimestampLatch`]). Replay: the dataset timestamp.
     pub device_ns: i64,
-    /// Host `CLOCK_MONOTONIC` time at which the frame finished arriving. Replay: host time at
-    /// which the frame was handed out.
+    /// Host `CLOCK_MONOTONIC` time at which the frame finished arriving. Replay: as recorded
+    /// (the dataset timestamp for plain ASL folders).
     pub host_receive_ns: i64,
     /// Exposure time used, microseconds, when known.
     pub exposure_us: Option<f64>,

@@ -3,16 +3,16 @@
 //! consumer pulls them. What the HIL tests and `vidslam replay` use.
 //!
 //! Frame metadata: `frame_time_ns` is the dataset timestamp (ASL/EuRoC stamps are mid-exposure
-//! on the dataset clock); `device_ns`, `exposure_us`, `frame_id` and flags come from
-//! `frames.csv` for our recordings, otherwise `device_ns` = dataset timestamp and `frame_id` =
-//! row index. An image that cannot be decoded is counted (`StreamStats::incomplete`), skipped
+//! on the dataset clock). For our recordings every field comes back as recorded (`frames.csv`:
+//! device time, host receive time, exposure, frame id, flags), so record → replay is the
+//! identity; for other ASL folders `device_ns` = `host_receive_ns` = dataset timestamp and
+//! `frame_id` = row index. An image that cannot be decoded is counted (`StreamStats::incomplete`), skipped
 //! and reported on the next frame's `dropped_before`.
 
 use crate::asl::{CamEntry, find_cam0, read_cam0};
 use crate::camera::{Camera, CameraError, CameraInfo, StreamStats};
 use crate::config::{AppliedConfig, CameraConfig};
 use crate::frame::{Frame, FrameFlags, FrameMeta, PixelFormat};
-use crate::host_clock::monotonic_now_ns;
 use crate::png_io;
 use crate::pool::FramePool;
 use std::path::{Path, PathBuf};
@@ -248,7 +248,7 @@ impl Camera for ReplayCamera {
                 height_px: self.height_px,
                 pixel_format: self.format,
                 device_ns: rec.map_or(entry.t_ns, |r| r.device_ns),
-                host_receive_ns: monotonic_now_ns(),
+                host_receive_ns: rec.map_or(entry.t_ns, |r| r.host_receive_ns),
                 exposure_us: rec.and_then(|r| r.exposure_us),
                 frame_time_ns: Some(entry.t_ns),
                 flags,
