@@ -1,5 +1,7 @@
 //! The `vidslam` command line: one subcommand per module here.
 
+pub mod camera;
+
 use clap::{Parser, Subcommand};
 
 /// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
@@ -11,9 +13,14 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-pub enum Command {}
+pub enum Command {
+    /// Camera drivers: list devices, show one, record frames (`camera --help`).
+    Camera(camera::CameraArgs),
+}
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Camera(args) => camera::run(args),
+    }
 }

@@ -30,7 +30,8 @@ impl FrameTimer {
     }
 
     /// Feeds one frame's (device timestamp, host receive time) and returns its frame time
-    /// (exposure midpoint, host clock, ns), or `None` while the model has too few observations.
+    /// (exposure midpoint, host clock, ns). From the first frame on (offset only, then offset
+    /// and skew as observations accumulate).
     /// Unknown exposure counts as zero (the latch instant is then the frame time).
     pub fn stamp(
         &mut self,
