@@ -529,7 +529,8 @@ impl Camera for AravisCamera {
             if !complete {
                 self.stats.incomplete += 1;
             }
-            if !complete && !(config.deliver_incomplete && size_ok) {
+            let deliver = complete || (config.deliver_incomplete && size_ok);
+            if !deliver {
                 self.pending_drops = self.pending_drops.saturating_add(1);
                 stream.push_buffer(buffer);
                 continue;

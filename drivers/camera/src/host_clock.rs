@@ -23,6 +23,8 @@ pub fn realtime_to_monotonic_ns(realtime_ns: i64) -> i64 {
     (realtime_ns - (real - mono_now)).min(mono_after)
 }
 
+// `time_t`/`c_long` are i32 on 32-bit ARM companion computers: keep the widening.
+#[allow(clippy::useless_conversion)]
 fn clock_ns(clock: libc::clockid_t) -> i64 {
     let mut ts = libc::timespec {
         tv_sec: 0,
@@ -31,7 +33,7 @@ fn clock_ns(clock: libc::clockid_t) -> i64 {
     // SAFETY: `ts` is a valid, writable timespec; both clocks exist on every Linux kernel.
     let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
     assert_eq!(rc, 0, "clock_gettime({clock}) failed");
-    ts.tv_sec as i64 * 1_000_000_000 + ts.tv_nsec as i64
+    i64::from(ts.tv_sec) * 1_000_000_000 + i64::from(ts.tv_nsec)
 }
 
 #[cfg(test)]

@@ -22,8 +22,13 @@ pub struct FrameTimer {
 
 impl FrameTimer {
     pub fn new(latch: TimestampLatch, transfer_latency_ns: i64) -> Self {
+        // One observation already gives the offset (skew 0), so even the first frame gets a time.
+        let config = ClockModelConfig {
+            min_observations: 1,
+            ..ClockModelConfig::default()
+        };
         FrameTimer {
-            model: ClockModel::new(ClockModelConfig::default()),
+            model: ClockModel::new(config),
             latch,
             transfer_latency_ns,
         }

@@ -151,8 +151,7 @@ impl V4l2BufferSource for DeviceSource {
                 data,
                 bytes_used: meta.bytesused,
                 sequence: meta.sequence,
-                timestamp_ns: meta.timestamp.sec as i64 * 1_000_000_000
-                    + meta.timestamp.usec as i64 * 1_000,
+                timestamp_ns: timeval_ns(meta.timestamp.sec, meta.timestamp.usec),
                 flags: meta.flags.into(),
             })),
             Err(e) if e.kind() == io::ErrorKind::TimedOut => Ok(None),
@@ -203,4 +202,10 @@ impl V4l2BufferSource for DeviceSource {
         }
         info
     }
+}
+
+/// `struct timeval` to nanoseconds. (`time_t` is i32 on 32-bit ARM: keep the widening.)
+#[allow(clippy::useless_conversion)]
+fn timeval_ns(sec: libc::time_t, usec: libc::time_t) -> i64 {
+    i64::from(sec) * 1_000_000_000 + i64::from(usec) * 1_000
 }
