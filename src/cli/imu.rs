@@ -241,10 +241,14 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
         format.base_rate_hz,
         a.out.display()
     );
-    let started = Instant::now();
-    let limit = a.seconds.map(Duration::from_secs_f64);
-    while limit.is_none_or(|l| started.elapsed() < l) {
-        dev.next_sample()?;
+    match a.seconds {
+        Some(s) => {
+            let deadline = Instant::now() + Duration::from_secs_f64(s);
+            while dev.next_sample_before(deadline)?.is_some() {}
+        }
+        None => loop {
+            dev.next_sample()?;
+        },
     }
     dev.stop()?;
     let c = dev.counters();

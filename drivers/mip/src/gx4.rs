@@ -424,8 +424,29 @@ impl Gx4 {
     /// reopen + reconfigure if [`Gx4Options::auto_reopen`]; only a failed reopen is returned.
     pub fn next_sample(&mut self) -> Result<ImuSample, Gx4Error> {
         loop {
-            if let Some(s) = self.samples.pop_front() {
+            if let Some(s) = self.next_sample_until(None)? {
                 return Ok(s);
+            }
+        }
+    }
+
+    /// Like [`Gx4::next_sample`], but returns `Ok(None)` once `deadline` has passed without a
+    /// sample (checked at every read timeout, so at most [`Gx4Options::read_timeout`] late, plus
+    /// the time of a reopen in progress).
+    pub fn next_sample_before(&mut self, deadline: Instant) -> Result<Option<ImuSample>, Gx4Error> {
+        self.next_sample_until(Some(deadline))
+    }
+
+    fn next_sample_until(
+        &mut self,
+        deadline: Option<Instant>,
+    ) -> Result<Option<ImuSample>, Gx4Error> {
+        loop {
+            if let Some(s) = self.samples.pop_front() {
+                return Ok(Some(s));
+            }
+            if deadline.is_some_and(|d| Instant::now() >= d) {
+                return Ok(None);
             }
             let failure = match self.read_some("reading the IMU stream") {
                 Ok(true) => None,
