@@ -11,4 +11,5 @@ pub mod dataset;
 pub mod geometry;
 pub mod image;
 pub mod imu;
+pub mod sim;
 pub mod time;
