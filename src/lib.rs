@@ -8,8 +8,11 @@
 pub mod camera;
 pub mod cli;
 pub mod dataset;
+pub mod eval;
 pub mod geometry;
 pub mod image;
 pub mod imu;
+pub mod output;
 pub mod sim;
 pub mod time;
+pub mod tracking;

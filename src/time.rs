@@ -95,6 +95,20 @@ impl TimeNs {
     }
 }
 
+/// Now on the host's monotonic clock (Linux `CLOCK_MONOTONIC`: nanoseconds since boot, not counting
+/// suspend, never stepped by NTP). This is the "host monotonic" time base that live pipelines
+/// stamp samples with; it is the same clock as Python's `time.monotonic_ns()` on Linux.
+pub fn host_monotonic_now() -> TimeNs {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    assert_eq!(rc, 0, "clock_gettime(CLOCK_MONOTONIC) failed");
+    TimeNs(ts.tv_sec as i64 * TimeNs::NS_PER_S + ts.tv_nsec as i64)
+}
+
 impl fmt::Display for TimeNs {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{} ns", self.0)
@@ -133,6 +147,13 @@ mod tests {
         assert_eq!(TimeNs::parse_secs("abc"), None);
         assert_eq!(TimeNs::parse_secs(""), None);
         assert_eq!(TimeNs::parse_secs("1.2.3"), None);
+    }
+
+    #[test]
+    fn host_monotonic_clock_is_monotonic_and_positive() {
+        let a = host_monotonic_now();
+        let b = host_monotonic_now();
+        assert!(a.0 > 0 && b >= a, "{a} then {b}");
     }
 
     #[test]

@@ -1,9 +1,13 @@
 //! The `vidslam` command line: one subcommand per module here.
 
 pub mod dataset;
-pub mod sim;
+pub mod eval;
+pub mod imu;
 
 use clap::{Parser, Subcommand};
+
+pub mod mavlink;
+pub mod sim;
 
 /// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
 #[derive(Parser, Debug)]
@@ -19,6 +23,12 @@ pub enum Command {
     Dataset(dataset::DatasetArgs),
     /// Render a camera + IMU sequence with ground truth and depth (simulator).
     Sim(sim::SimArgs),
+    /// Compare an estimated trajectory with ground truth (ATE, RPE, scale error).
+    Eval(eval::EvalArgs),
+    /// Microstrain 3DM-GX4-25 IMU: decode and record MIP streams.
+    Imu(imu::ImuArgs),
+    /// MAVLink output to a flight controller (trajectory playback to test an FC setup).
+    Mavlink(mavlink::MavlinkArgs),
 }
 
 /// Runs the parsed command line.
@@ -26,5 +36,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Dataset(a) => dataset::run(a),
         Command::Sim(a) => sim::run(a),
+        Command::Eval(args) => eval::run(&args),
+        Command::Imu(args) => imu::run(args),
+        Command::Mavlink(a) => mavlink::run(a),
     }
 }

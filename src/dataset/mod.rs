@@ -3,7 +3,9 @@
 
 mod asl;
 mod csv_lines;
+pub mod euroc_imu;
 mod groundtruth;
+pub mod gx4_recording;
 mod sensor_yaml;
 pub mod trajectory;
 mod writer;

@@ -3,9 +3,11 @@
 //! the column (0..width), `y` the row (0..height).
 
 mod png_io;
+mod pyramid;
 mod sample;
 
 pub use png_io::{PngError, read_png_gray8, read_png_gray16, write_png_gray8, write_png_gray16};
+pub use pyramid::Pyramid;
 pub use sample::{bilinear, bilinear_with_gradient};
 
 /// An owned image of `T` pixels, row-major with `stride >= width` elements per row.

@@ -51,3 +51,12 @@ impl ImuNoise {
         (self.gyro_random_walk * k, self.accel_random_walk * k)
     }
 }
+
+pub mod integration;
+
+pub use integration::{ImuBias, NavState, Preintegration, propagate};
+pub mod residual;
+
+pub use residual::{
+    FrameState, Matrix15, Vector15, imu_jacobian_j, imu_residual, imu_residual_covariance,
+};

@@ -1,0 +1,332 @@
+//! The evaluation figures: a flat, stably-keyed serde struct and a readable table.
+//!
+//! JSON keys are part of the interface (scripts and CI compare them): rename none. Figures that
+//! cannot be computed (e.g. RPE over 10 m on a 5 m trajectory) are `null`, never NaN.
+
+use super::Alignment;
+use super::ate::AbsoluteErrors;
+use super::rpe::RelativeErrors;
+use super::stats::ErrorStats;
+use crate::time::TimeNs;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// The figures of one evaluation (see [`super::evaluate`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// Alignment applied before the ATE and RPE.
+    pub align: Alignment,
+    /// Largest ground-truth gap interpolated across, ms.
+    pub max_dt_ms: f64,
+    /// Poses in the ground-truth and estimate files.
+    pub gt_poses: usize,
+    pub est_poses: usize,
+    /// Estimate poses matched to (interpolated) ground truth.
+    pub matched_poses: usize,
+    /// Time from the first to the last matched pose, s.
+    pub duration_s: f64,
+    /// Path length travelled by the ground truth over the matched poses, m. Below a metre or so,
+    /// the alignment (and thus the scale) is poorly conditioned.
+    pub gt_path_m: f64,
+    /// Absolute translation error after alignment, m.
+    pub ate_rmse_m: f64,
+    pub ate_mean_m: f64,
+    pub ate_median_m: f64,
+    pub ate_max_m: f64,
+    /// Absolute rotation error after alignment (angle of `R_gtᵀ R_est`), degrees.
+    pub rot_rmse_deg: f64,
+    pub rot_mean_deg: f64,
+    pub rot_max_deg: f64,
+    /// RPE over 1 m of travelled ground truth (segments start at every pose); `None` (null) when
+    /// the matched ground truth is shorter.
+    pub rpe_1m_trans_rmse_m: Option<f64>,
+    pub rpe_1m_rot_rmse_deg: Option<f64>,
+    pub rpe_1m_segments: usize,
+    /// RPE over 10 m of travelled ground truth.
+    pub rpe_10m_trans_rmse_m: Option<f64>,
+    pub rpe_10m_rot_rmse_deg: Option<f64>,
+    pub rpe_10m_segments: usize,
+    /// Scale `s` of the Sim3 (Umeyama) alignment mapping the estimate onto the ground truth,
+    /// whatever `align` is: `s > 1` means the estimate is too small.
+    pub scale: f64,
+    /// `100 · |s − 1|`, %.
+    pub scale_error_pct: f64,
+    /// Per-pose errors for plots; not part of the JSON.
+    #[serde(skip)]
+    pub per_pose: Vec<PoseError>,
+}
+
+/// The error at one matched pose, after alignment.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseError {
+    pub t: TimeNs,
+    /// Seconds since the first matched pose.
+    pub time_s: f64,
+    pub p_world_gt_m: Vector3<f64>,
+    /// Aligned estimate position in the ground-truth world.
+    pub p_world_est_m: Vector3<f64>,
+    pub ate_m: f64,
+    pub rot_err_deg: f64,
+}
+
+/// What [`EvalReport::new`] summarises.
+pub(super) struct ReportInputs<'a> {
+    pub align: Alignment,
+    pub max_dt_ms: f64,
+    pub gt_poses: usize,
+    pub est_poses: usize,
+    pub sim3_scale: f64,
+    pub absolute: &'a AbsoluteErrors,
+    pub rpe_1m: &'a RelativeErrors,
+    pub rpe_10m: &'a RelativeErrors,
+    pub per_pose: Vec<PoseError>,
+}
+
+impl EvalReport {
+    pub(super) fn new(inp: ReportInputs<'_>) -> EvalReport {
+        // Absolute errors of >= 3 finite poses always have statistics; the fallback only guards
+        // against a caller passing none (then the figures read 0 with matched_poses 0).
+        let zero = ErrorStats {
+            rmse: 0.0,
+            mean: 0.0,
+            median: 0.0,
+            max: 0.0,
+            count: 0,
+        };
+        let ate = ErrorStats::of(&inp.absolute.trans_m).unwrap_or(zero);
+        let rot = ErrorStats::of(&inp.absolute.rot_deg).unwrap_or(zero);
+        let rmse = |e: &[f64]| ErrorStats::of(e).map(|s| s.rmse);
+        let gt_path_m = inp
+            .per_pose
+            .windows(2)
+            .map(|w| (w[1].p_world_gt_m - w[0].p_world_gt_m).norm())
+            .sum();
+        EvalReport {
+            duration_s: inp.per_pose.last().map_or(0.0, |p| p.time_s),
+            gt_path_m,
+            align: inp.align,
+            max_dt_ms: inp.max_dt_ms,
+            gt_poses: inp.gt_poses,
+            est_poses: inp.est_poses,
+            matched_poses: inp.per_pose.len(),
+            ate_rmse_m: ate.rmse,
+            ate_mean_m: ate.mean,
+            ate_median_m: ate.median,
+            ate_max_m: ate.max,
+            rot_rmse_deg: rot.rmse,
+            rot_mean_deg: rot.mean,
+            rot_max_deg: rot.max,
+            rpe_1m_trans_rmse_m: rmse(&inp.rpe_1m.trans_m),
+            rpe_1m_rot_rmse_deg: rmse(&inp.rpe_1m.rot_deg),
+            rpe_1m_segments: inp.rpe_1m.trans_m.len(),
+            rpe_10m_trans_rmse_m: rmse(&inp.rpe_10m.trans_m),
+            rpe_10m_rot_rmse_deg: rmse(&inp.rpe_10m.rot_deg),
+            rpe_10m_segments: inp.rpe_10m.trans_m.len(),
+            scale: inp.sim3_scale,
+            scale_error_pct: 100.0 * (inp.sim3_scale - 1.0).abs(),
+            per_pose: inp.per_pose,
+        }
+    }
+
+    /// Pretty-printed JSON of the figures (flat object, keys as the field names).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("a struct of numbers and strings serialises")
+    }
+
+    /// Writes [`EvalReport::to_json`] to `path`.
+    pub fn write_json(&self, path: &Path) -> std::io::Result<()> {
+        let mut s = self.to_json();
+        s.push('\n');
+        std::fs::write(path, s)
+            .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+    }
+
+    /// A human-readable table of the figures, one per line, units in the first column.
+    pub fn to_table(&self) -> String {
+        let opt = |v: Option<f64>, prec: usize| match v {
+            Some(x) => format!("{x:.prec$}"),
+            None => "n/a".to_string(),
+        };
+        let rows: Vec<(String, String)> = vec![
+            ("alignment".into(), self.align.to_string()),
+            (
+                "matched poses".into(),
+                format!(
+                    "{} of {} estimated ({} GT, max gap {} ms)",
+                    self.matched_poses, self.est_poses, self.gt_poses, self.max_dt_ms
+                ),
+            ),
+            (
+                "matched span".into(),
+                format!(
+                    "{:.3} s, {:.3} m travelled (GT)",
+                    self.duration_s, self.gt_path_m
+                ),
+            ),
+            ("ATE RMSE [m]".into(), format!("{:.6}", self.ate_rmse_m)),
+            ("ATE mean [m]".into(), format!("{:.6}", self.ate_mean_m)),
+            ("ATE median [m]".into(), format!("{:.6}", self.ate_median_m)),
+            ("ATE max [m]".into(), format!("{:.6}", self.ate_max_m)),
+            (
+                "rotation RMSE [deg]".into(),
+                format!("{:.4}", self.rot_rmse_deg),
+            ),
+            (
+                "rotation max [deg]".into(),
+                format!("{:.4}", self.rot_max_deg),
+            ),
+            (
+                "RPE 1 m trans RMSE [m]".into(),
+                format!(
+                    "{} ({} segments)",
+                    opt(self.rpe_1m_trans_rmse_m, 6),
+                    self.rpe_1m_segments
+                ),
+            ),
+            (
+                "RPE 1 m rot RMSE [deg]".into(),
+                opt(self.rpe_1m_rot_rmse_deg, 4),
+            ),
+            (
+                "RPE 10 m trans RMSE [m]".into(),
+                format!(
+                    "{} ({} segments)",
+                    opt(self.rpe_10m_trans_rmse_m, 6),
+                    self.rpe_10m_segments
+                ),
+            ),
+            (
+                "RPE 10 m rot RMSE [deg]".into(),
+                opt(self.rpe_10m_rot_rmse_deg, 4),
+            ),
+            (
+                "Sim3 scale (est -> GT)".into(),
+                format!("{:.6}", self.scale),
+            ),
+            (
+                "scale error [%]".into(),
+                format!("{:.4}", self.scale_error_pct),
+            ),
+        ];
+        let width = rows.iter().map(|(k, _)| k.len()).max().unwrap_or(0);
+        let mut out = String::new();
+        for (k, v) in rows {
+            writeln!(out, "{k:<width$}  {v}").expect("writing to a String cannot fail");
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> EvalReport {
+        let abs = AbsoluteErrors {
+            trans_m: vec![0.1, 0.2, 0.2],
+            rot_deg: vec![1.0, 1.0, 1.0],
+        };
+        let rpe_1m = RelativeErrors {
+            trans_m: vec![0.03, 0.04],
+            rot_deg: vec![0.5, 0.5],
+        };
+        EvalReport::new(ReportInputs {
+            align: Alignment::Sim3,
+            max_dt_ms: 10.0,
+            gt_poses: 100,
+            est_poses: 4,
+            sim3_scale: 0.98,
+            absolute: &abs,
+            rpe_1m: &rpe_1m,
+            rpe_10m: &RelativeErrors::default(),
+            // Ground truth along x at 0, 1, 3 m, at 0, 1, 2 s: 3 m travelled in 2 s.
+            per_pose: [0.0, 1.0, 3.0]
+                .iter()
+                .enumerate()
+                .map(|(k, &x_m)| PoseError {
+                    t: TimeNs(k as i64 * TimeNs::NS_PER_S),
+                    time_s: k as f64,
+                    p_world_gt_m: Vector3::new(x_m, 0.0, 0.0),
+                    p_world_est_m: Vector3::zeros(),
+                    ate_m: 0.0,
+                    rot_err_deg: 0.0,
+                })
+                .collect(),
+        })
+    }
+
+    #[test]
+    fn json_keys_are_stable_and_flat_with_null_for_missing() {
+        let r = sample();
+        let v: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
+        let obj = v.as_object().unwrap();
+        let mut keys: Vec<&str> = obj.keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        assert_eq!(
+            keys,
+            vec![
+                "align",
+                "ate_max_m",
+                "ate_mean_m",
+                "ate_median_m",
+                "ate_rmse_m",
+                "duration_s",
+                "est_poses",
+                "gt_path_m",
+                "gt_poses",
+                "matched_poses",
+                "max_dt_ms",
+                "rot_max_deg",
+                "rot_mean_deg",
+                "rot_rmse_deg",
+                "rpe_10m_rot_rmse_deg",
+                "rpe_10m_segments",
+                "rpe_10m_trans_rmse_m",
+                "rpe_1m_rot_rmse_deg",
+                "rpe_1m_segments",
+                "rpe_1m_trans_rmse_m",
+                "scale",
+                "scale_error_pct",
+            ]
+        );
+        assert_eq!(obj["align"], "sim3");
+        assert_eq!(obj["matched_poses"], 3);
+        assert_eq!(obj["gt_path_m"], 3.0);
+        assert_eq!(obj["duration_s"], 2.0);
+        assert!(obj["rpe_10m_trans_rmse_m"].is_null());
+        assert!((obj["ate_rmse_m"].as_f64().unwrap() - 0.03f64.sqrt()).abs() < 1e-12);
+        assert!((obj["scale_error_pct"].as_f64().unwrap() - 2.0).abs() < 1e-9);
+        assert!((obj["rpe_1m_trans_rmse_m"].as_f64().unwrap() - 0.00125f64.sqrt()).abs() < 1e-12);
+        // Round trip (per-pose data is not serialised).
+        let back: EvalReport = serde_json::from_str(&r.to_json()).unwrap();
+        assert_eq!(
+            EvalReport {
+                per_pose: vec![],
+                ..r
+            },
+            back
+        );
+    }
+
+    #[test]
+    fn table_has_one_aligned_row_per_figure() {
+        let t = sample().to_table();
+        assert!(t.contains("ATE RMSE [m]") && t.contains("0.173205"), "{t}");
+        assert!(
+            t.contains("RPE 10 m trans RMSE [m]  n/a (0 segments)"),
+            "{t}"
+        );
+        assert!(t.contains("scale error [%]") && t.contains("2.0000"), "{t}");
+        let value_cols: Vec<usize> = t
+            .lines()
+            .map(|l| {
+                l.find("  ")
+                    .map(|i| i + l[i..].len() - l[i..].trim_start().len())
+                    .unwrap()
+            })
+            .collect();
+        assert!(value_cols.windows(2).all(|w| w[0] == w[1]), "{t}");
+    }
+}

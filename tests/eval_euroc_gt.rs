@@ -1,0 +1,185 @@
+//! `vidslam eval` on the real EuRoC V1_01 ground truth (shared data) against a copy perturbed by a
+//! known similarity transform and seeded Gaussian noise: the perturbation must be recovered (scale
+//! within 0.1 %, ATE and rotation error equal to the injected noise RMS within 5 %).
+
+mod eval_common;
+
+use eval_common::{num, perturb, read_json, run_vidslam, scratch_dir};
+use nalgebra::{UnitQuaternion, Vector3};
+use std::ffi::OsStr;
+use std::path::PathBuf;
+use vidslam::dataset::{StampedPose, Trajectory, TrajectoryFormat, shared_data_dir};
+use vidslam::eval::Sim3;
+
+fn v101_groundtruth() -> Option<PathBuf> {
+    let p =
+        shared_data_dir().join("euroc/V1_01_easy_micro/mav0/state_groundtruth_estimate0/data.csv");
+    if p.is_file() {
+        Some(p)
+    } else {
+        eprintln!(
+            "SKIP: EuRoC ground truth not found at {} (set VIDSLAM_DATA)",
+            p.display()
+        );
+        None
+    }
+}
+
+#[test]
+fn recovers_a_known_similarity_and_noise_on_v101_ground_truth() {
+    let Some(gt_path) = v101_groundtruth() else {
+        return;
+    };
+    let (gt, _) = Trajectory::read(&gt_path).unwrap();
+    assert_eq!(gt.len(), 28_712);
+
+    // The estimate runs at 50 Hz, 2.5 ms after ground-truth samples (so `eval` interpolates), on a
+    // world frame rotated, shifted and scaled by 1.3, with 2 cm / 0.3 deg per-axis noise.
+    let truth = Trajectory::new(
+        gt.poses
+            .iter()
+            .step_by(4)
+            .filter_map(|p| {
+                let t = p.t.add_ns(2_500_000);
+                Some(StampedPose {
+                    t,
+                    t_world_body: gt.interpolate(t, 10_000_000)?,
+                })
+            })
+            .collect(),
+    );
+    let t_est_gt = Sim3 {
+        rotation: UnitQuaternion::from_euler_angles(0.05, -0.1, 1.9),
+        translation: Vector3::new(12.0, -4.0, 0.7),
+        scale: 1.3,
+    };
+    let (est, injected) = perturb(&truth, &t_est_gt, 0.02, 0.3f64.to_radians(), 2024);
+
+    let dir = scratch_dir("eval-euroc-gt");
+    let est_path = dir.join("v101_perturbed.tum");
+    est.write(&est_path, TrajectoryFormat::Tum).unwrap();
+    let (json_sim3, json_se3, png) = (
+        dir.join("sim3.json"),
+        dir.join("se3.json"),
+        dir.join("v101.png"),
+    );
+    let arg = |s: &'static str| OsStr::new(s);
+    let out = run_vidslam(&[
+        arg("eval"),
+        arg("--gt"),
+        gt_path.as_os_str(),
+        arg("--est"),
+        est_path.as_os_str(),
+        arg("--align"),
+        arg("sim3"),
+        arg("--json"),
+        json_sim3.as_os_str(),
+        arg("--plot"),
+        png.as_os_str(),
+    ]);
+    let table = String::from_utf8(out.stdout).unwrap();
+    eprintln!("{table}");
+    eprintln!(
+        "injected: position noise RMS {:.6} m, rotation noise RMS {:.4} deg, scale 1/1.3 = {:.6}",
+        injected.pos_noise_rms_m,
+        injected.rot_noise_rms_deg,
+        1.0 / 1.3
+    );
+    for row in [
+        "ATE RMSE [m]",
+        "rotation RMSE [deg]",
+        "RPE 1 m trans RMSE [m]",
+        "scale error [%]",
+    ] {
+        assert!(table.contains(row), "table lacks `{row}`:\n{table}");
+    }
+
+    let r = read_json(&json_sim3);
+    assert_eq!(r["align"], "sim3");
+    assert_eq!(num(&r, "matched_poses"), est.len() as f64);
+    // Sim3 scale maps the estimate onto GT: 1 / 1.3.
+    let scale = num(&r, "scale");
+    assert!(
+        (scale * 1.3 - 1.0).abs() < 1e-3,
+        "scale {scale}, expected {}",
+        1.0 / 1.3
+    );
+    assert!((num(&r, "scale_error_pct") - 100.0 * (scale - 1.0).abs()).abs() < 1e-9);
+    let ate = num(&r, "ate_rmse_m");
+    assert!(
+        (ate / injected.pos_noise_rms_m - 1.0).abs() < 0.05,
+        "ATE {ate} m vs injected {} m",
+        injected.pos_noise_rms_m
+    );
+    let rot = num(&r, "rot_rmse_deg");
+    assert!(
+        (rot / injected.rot_noise_rms_deg - 1.0).abs() < 0.05,
+        "rotation {rot} deg vs injected {} deg",
+        injected.rot_noise_rms_deg
+    );
+    // Both RPE lengths exist on this 58 m flight, and noise dominates them.
+    assert!(num(&r, "rpe_10m_segments") > 1000.0, "{r:?}");
+    assert!(num(&r, "rpe_1m_trans_rmse_m") > 0.0 && num(&r, "rpe_10m_trans_rmse_m") > 0.0);
+    let png_bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&png_bytes[..8], b"\x89PNG\r\n\x1a\n");
+
+    // SE3 alignment cannot absorb the scale: much larger ATE, yet the same Sim3 scale is reported.
+    run_vidslam(&[
+        arg("eval"),
+        arg("--gt"),
+        gt_path.as_os_str(),
+        arg("--est"),
+        est_path.as_os_str(),
+        arg("--json"),
+        json_se3.as_os_str(),
+    ]);
+    let r3 = read_json(&json_se3);
+    assert_eq!(r3["align"], "se3");
+    assert_eq!(num(&r3, "scale"), scale);
+    assert!(num(&r3, "ate_rmse_m") > 5.0 * ate, "{r3:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn disjoint_or_bad_input_fails_with_a_clear_message() {
+    let dir = scratch_dir("eval-bad-input");
+    let gt_path = dir.join("gt.tum");
+    std::fs::write(
+        &gt_path,
+        "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 2 1 0 0 0 0 1\n",
+    )
+    .unwrap();
+    let bad = dir.join("bad.tum");
+    std::fs::write(&bad, "1.0 0 0 0 0 0 0 1\n1.5 0 nan 0 0 0 0 1\n").unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
+        .args([OsStr::new("eval"), OsStr::new("--gt"), gt_path.as_os_str()])
+        .args([OsStr::new("--est"), bad.as_os_str()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--est") && err.contains("bad.tum:2") && err.contains("not finite"),
+        "{err}"
+    );
+
+    let late = dir.join("late.tum");
+    std::fs::write(&late, "100.0 0 0 0 0 0 0 1\n101.0 1 0 0 0 0 0 1\n").unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
+        .args([OsStr::new("eval"), OsStr::new("--gt"), gt_path.as_os_str()])
+        .args([
+            OsStr::new("--est"),
+            late.as_os_str(),
+            OsStr::new("--max-dt-ms"),
+            OsStr::new("2000"),
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("same clock") && err.contains("100.000000000"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
