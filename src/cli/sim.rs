@@ -19,7 +19,10 @@ pub struct SimArgs {
     /// rows inside the trajectory's span are copied byte-identically.
     #[arg(long, default_value = "synth")]
     pub imu: ImuSource,
-    /// Keep only the first S seconds.
+    /// Start S seconds into the trajectory.
+    #[arg(long, value_name = "S")]
+    pub start_s: Option<f64>,
+    /// Keep only S seconds (from the start, or from --start-s).
     #[arg(long, value_name = "S")]
     pub seconds: Option<f64>,
     /// Camera rate, Hz (frames fall on IMU sample times).
@@ -53,6 +56,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     if let Some(p) = &a.camera {
         cfg.camera = read_camera_yaml(p)?;
     }
+    cfg.start_s = a.start_s;
     cfg.seconds = a.seconds;
     cfg.cam_rate_hz = a.cam_rate_hz;
     cfg.imu_rate_hz = a.imu_rate_hz;

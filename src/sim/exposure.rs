@@ -77,7 +77,7 @@ impl AutoExposure {
 
     /// Updates from the mean vignetted radiance of the frame just taken.
     pub fn update(&mut self, mean_radiance: f64) {
-        if !(mean_radiance > 1e-6) {
+        if mean_radiance.is_nan() || mean_radiance <= 1e-6 {
             return;
         }
         let product = self.current.exposure_s * self.current.gain;

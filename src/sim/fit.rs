@@ -81,7 +81,7 @@ impl BandedSpd {
                     sum -= self.a[self.idx(i, k)] * self.a[self.idx(j, k)];
                 }
                 if i == j {
-                    if !(sum > 0.0) {
+                    if sum.is_nan() || sum <= 0.0 {
                         return Err(i);
                     }
                     let k = self.idx(i, i);
@@ -98,16 +98,18 @@ impl BandedSpd {
     /// Solves `L Lᵀ x = b` in place after [`Self::cholesky`].
     pub(crate) fn solve(&self, b: &mut [f64]) {
         for i in 0..self.n {
+            let lo = i.saturating_sub(self.hb);
             let mut s = b[i];
-            for k in i.saturating_sub(self.hb)..i {
-                s -= self.a[self.idx(i, k)] * b[k];
+            for (k, bk) in b.iter().enumerate().take(i).skip(lo) {
+                s -= self.a[self.idx(i, k)] * bk;
             }
             b[i] = s / self.a[self.idx(i, i)];
         }
         for i in (0..self.n).rev() {
+            let hi = (i + self.hb + 1).min(self.n);
             let mut s = b[i];
-            for k in i + 1..(i + self.hb + 1).min(self.n) {
-                s -= self.a[self.idx(k, i)] * b[k];
+            for (k, bk) in b.iter().enumerate().take(hi).skip(i + 1) {
+                s -= self.a[self.idx(k, i)] * bk;
             }
             b[i] = s / self.a[self.idx(i, i)];
         }
@@ -233,11 +235,9 @@ pub fn fit_pose_spline(
         let mut g = vec![0.0; m];
         for (i, jac, res) in &terms {
             let base = 3 * i;
-            for c1 in 0..12 {
-                let j1 = &jac[c1];
+            for (c1, j1) in jac.iter().enumerate() {
                 g[base + c1] -= j1[0] * res.x + j1[1] * res.y + j1[2] * res.z;
-                for c2 in 0..=c1 {
-                    let j2 = &jac[c2];
+                for (c2, j2) in jac.iter().enumerate().take(c1 + 1) {
                     h_add(&mut hr, base + c1, base + c2, j1, j2);
                 }
             }

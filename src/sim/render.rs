@@ -154,7 +154,8 @@ impl CameraRays {
                 .ok_or(RenderError::Unproject(u, v))?;
             Ok([r.x as f32, r.y as f32])
         };
-        let rows: Vec<Result<(Vec<[f32; 2]>, Vec<[f32; 2]>), RenderError>> = (0..h)
+        type RowRays = (Vec<[f32; 2]>, Vec<[f32; 2]>);
+        let rows: Vec<Result<RowRays, RenderError>> = (0..h)
             .into_par_iter()
             .map(|y| {
                 let mut s = Vec::with_capacity(w * SAMPLES_PER_PIXEL);
@@ -337,7 +338,7 @@ fn cast(scene: &RenderScene, view: &View, cands: &[u16], d: &[f32; 3]) -> Option
         let q = &scene.quads[qi];
         let denom = dot(&q.n, d);
         // z = -pq0 / denom must be positive (denom < 0) and nearer than the best so far.
-        if denom >= 0.0 || -pq[0] >= best_z * -denom {
+        if denom >= 0.0 || pq[0] >= best_z * -denom {
             continue;
         }
         let z = -pq[0] / denom;

@@ -74,7 +74,9 @@ pub struct SimConfig {
     pub out_dir: PathBuf,
     pub trajectory: TrajectorySource,
     pub imu: ImuSource,
-    /// Limit the sequence to its first `seconds`.
+    /// Skip the first `start_s` seconds of the trajectory.
+    pub start_s: Option<f64>,
+    /// Limit the sequence to `seconds` (after `start_s`).
     pub seconds: Option<f64>,
     pub cam_rate_hz: f64,
     /// Synthetic IMU rate (a real IMU file keeps its own).
@@ -97,6 +99,7 @@ impl SimConfig {
             out_dir,
             trajectory,
             imu,
+            start_s: None,
             seconds: None,
             cam_rate_hz: 20.0,
             imu_rate_hz: 200.0,
@@ -192,14 +195,15 @@ pub struct SimReport {
 
 /// Generates the sequence described by `cfg`.
 pub fn generate(cfg: &SimConfig) -> Result<SimReport, SimError> {
-    if !(cfg.cam_rate_hz > 0.0) || !(cfg.imu_rate_hz > 0.0) {
+    let positive = |x: f64| x.is_finite() && x > 0.0;
+    if !positive(cfg.cam_rate_hz) || !positive(cfg.imu_rate_hz) {
         return Err(SimError::Config(format!(
             "rates must be positive (camera {} Hz, IMU {} Hz)",
             cfg.cam_rate_hz, cfg.imu_rate_hz
         )));
     }
     if let Some(s) = cfg.seconds
-        && !(s > 0.0)
+        && !positive(s)
     {
         return Err(SimError::Config(format!(
             "--seconds must be positive, got {s}"
@@ -220,7 +224,11 @@ pub fn generate(cfg: &SimConfig) -> Result<SimReport, SimError> {
         ImuSource::File(p) => Some(read_real_imu(p)?),
         ImuSource::Synth => None,
     };
-    let (mut start, mut end) = (spline.start(), spline.end());
+    // The spline's last segment may end up to one knot past the last pose: stay within the data.
+    let (mut start, mut end) = (
+        poses.poses[0].t,
+        poses.poses[poses.poses.len() - 1].t.min(spline.end()),
+    );
     if let Some(rows) = &real_rows {
         start = start.max(rows[0].sample.t);
         end = end.min(rows[rows.len() - 1].sample.t);
@@ -231,6 +239,15 @@ pub fn generate(cfg: &SimConfig) -> Result<SimReport, SimError> {
                 rows[rows.len() - 1].sample.t,
                 spline.start(),
                 spline.end()
+            )));
+        }
+    }
+    if let Some(s) = cfg.start_s {
+        start = start.add_ns((s * 1e9).round() as i64);
+        if start >= end {
+            return Err(SimError::Config(format!(
+                "--start-s {s} is past the end of the trajectory ({:.3} s long)",
+                end.secs_since(spline.start())
             )));
         }
     }
