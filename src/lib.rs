@@ -13,5 +13,6 @@ pub mod geometry;
 pub mod image;
 pub mod imu;
 pub mod output;
+pub mod sim;
 pub mod time;
 pub mod tracking;

@@ -8,6 +8,7 @@ pub mod imu;
 use clap::{Parser, Subcommand};
 
 pub mod mavlink;
+pub mod sim;
 
 /// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
 #[derive(Parser, Debug)]
@@ -21,6 +22,8 @@ pub struct Cli {
 pub enum Command {
     /// Inspect ASL/EuRoC dataset folders.
     Dataset(dataset::DatasetArgs),
+    /// Render a camera + IMU sequence with ground truth and depth (simulator).
+    Sim(sim::SimArgs),
     /// Compare an estimated trajectory with ground truth (ATE, RPE, scale error).
     Eval(eval::EvalArgs),
     /// Microstrain 3DM-GX4-25 IMU: decode and record MIP streams.
@@ -35,6 +38,7 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Dataset(a) => dataset::run(a),
+        Command::Sim(a) => sim::run(a),
         Command::Eval(args) => eval::run(&args),
         Command::Imu(args) => imu::run(args),
         Command::Mavlink(a) => mavlink::run(a),

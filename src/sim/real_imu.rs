@@ -1,0 +1,174 @@
+//! A real EuRoC `imu0/data.csv` used as is: rows kept byte-for-byte for pass-through, parsed
+//! samples for bias estimation.
+//!
+//! Bias ground truth: the real IMU is compared with the ideal IMU of the spline fitted to the
+//! ground-truth path, `e_k = meas_k - ideal_k`, and the bias at sample k is the centred moving
+//! average of `e` over [`BIAS_WINDOW_S`] (truncated at the ends). White noise and vibration
+//! average out; what remains is the bias plus the slowly varying part of the spline's error (the
+//! Vicon-to-gravity alignment, accelerations the 20 Hz-bandwidth spline cannot follow) — an
+//! estimate, not a measurement: the real biases of the recording are unknown.
+
+use super::imu_synth::ideal_imu;
+use super::spline::PoseSpline;
+use crate::imu::ImuSample;
+use crate::time::TimeNs;
+use nalgebra::Vector3;
+use std::path::{Path, PathBuf};
+
+/// Window of the bias moving average, s.
+pub const BIAS_WINDOW_S: f64 = 10.0;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RealImuError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}:{line}: {msg}")]
+    Parse {
+        path: PathBuf,
+        line: usize,
+        msg: String,
+    },
+    #[error("{path}: no IMU rows")]
+    Empty { path: PathBuf },
+}
+
+/// One data row: the parsed sample and the exact text of its line (without the newline).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawImuRow {
+    pub sample: ImuSample,
+    pub line: String,
+}
+
+/// Reads every data row of an EuRoC IMU CSV (`t_ns, gyro xyz rad/s, accel xyz m/s²`), keeping the
+/// raw text. Comment (`#`) and blank lines are skipped; any malformed row or non-increasing
+/// timestamp is an error naming the file and line.
+pub fn read_real_imu(path: &Path) -> Result<Vec<RawImuRow>, RealImuError> {
+    let bytes = std::fs::read(path).map_err(|source| RealImuError::Io {
+        path: path.into(),
+        source,
+    })?;
+    let text = String::from_utf8(bytes).map_err(|e| RealImuError::Parse {
+        path: path.into(),
+        line: 0,
+        msg: format!("not UTF-8 text: {e}"),
+    })?;
+    let mut rows: Vec<RawImuRow> = vec![];
+    let body = text.strip_suffix('\n').unwrap_or(&text);
+    for (idx, raw) in body.split('\n').enumerate() {
+        let trimmed = raw.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            continue;
+        }
+        let err = |msg: String| RealImuError::Parse {
+            path: path.into(),
+            line: idx + 1,
+            msg,
+        };
+        let f: Vec<&str> = trimmed.split(',').map(str::trim).collect();
+        if f.len() < 7 {
+            return Err(err(format!("expected 7 columns, found {}", f.len())));
+        }
+        let t = f[0].parse::<i64>().map_err(|_| {
+            err(format!(
+                "column 1: '{}' is not an integer timestamp in ns",
+                f[0]
+            ))
+        })?;
+        let mut v = [0.0; 6];
+        for (k, x) in v.iter_mut().enumerate() {
+            *x = match f[k + 1].parse::<f64>() {
+                Ok(x) if x.is_finite() => x,
+                _ => {
+                    return Err(err(format!(
+                        "column {}: '{}' is not a finite number",
+                        k + 2,
+                        f[k + 1]
+                    )));
+                }
+            };
+        }
+        if let Some(prev) = rows.last()
+            && t <= prev.sample.t.0
+        {
+            return Err(err(format!(
+                "timestamp {t} ns is not after the previous row's {} ns",
+                prev.sample.t.0
+            )));
+        }
+        rows.push(RawImuRow {
+            sample: ImuSample {
+                t: TimeNs(t),
+                gyro_rad_s: Vector3::new(v[0], v[1], v[2]),
+                accel_m_s2: Vector3::new(v[3], v[4], v[5]),
+            },
+            line: raw.to_string(),
+        });
+    }
+    if rows.is_empty() {
+        return Err(RealImuError::Empty { path: path.into() });
+    }
+    Ok(rows)
+}
+
+/// Bias estimates `(gyro rad/s, accel m/s²)` at every sample (see the module docs).
+pub fn estimate_biases(
+    spline: &PoseSpline,
+    samples: &[ImuSample],
+    window_s: f64,
+) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    let n = samples.len();
+    // Prefix sums of the errors.
+    let mut pg = vec![Vector3::zeros(); n + 1];
+    let mut pa = vec![Vector3::zeros(); n + 1];
+    for (k, s) in samples.iter().enumerate() {
+        let ideal = ideal_imu(spline, s.t);
+        pg[k + 1] = pg[k] + (s.gyro_rad_s - ideal.gyro_rad_s);
+        pa[k + 1] = pa[k] + (s.accel_m_s2 - ideal.accel_m_s2);
+    }
+    let half_ns = (0.5 * window_s * 1e9) as i64;
+    let (mut lo, mut hi) = (0usize, 0usize);
+    samples
+        .iter()
+        .map(|s| {
+            while samples[lo].t.ns_since(s.t) < -half_ns {
+                lo += 1;
+            }
+            while hi < n && samples[hi].t.ns_since(s.t) <= half_ns {
+                hi += 1;
+            }
+            let c = (hi - lo) as f64;
+            ((pg[hi] - pg[lo]) / c, (pa[hi] - pa[lo]) / c)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keeps_raw_lines_and_names_bad_rows() {
+        let dir = std::env::temp_dir().join(format!("vidslam-realimu-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("imu.csv");
+        let text = "#timestamp [ns],w..\n10,0.1,0.2,0.3,9.8,0.0,-0.10000000000000001\r\n20,1e-3,0,0,9.81,0,0\n";
+        std::fs::write(&p, text).unwrap();
+        let rows = read_real_imu(&p).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert_eq!(
+            rows[0].line,
+            "10,0.1,0.2,0.3,9.8,0.0,-0.10000000000000001\r"
+        );
+        assert_eq!(rows[1].sample.gyro_rad_s.x, 1e-3);
+        std::fs::write(&p, "10,0,0,0,0,0,0\n20,0,0,x,0,0,0\n").unwrap();
+        let e = read_real_imu(&p).unwrap_err().to_string();
+        assert!(e.contains("imu.csv:2") && e.contains("column 4"), "{e}");
+        std::fs::write(&p, "10,0,0,0,0,0,0\n10,0,0,0,0,0,0\n").unwrap();
+        assert!(read_real_imu(&p).unwrap_err().to_string().contains(":2:"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
