@@ -34,9 +34,7 @@ fn split(bytes: &[u8]) -> (Vec<Vec<u8>>, usize, u64) {
 }
 
 fn temp_file(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("vidslam-imu-record-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    std::env::temp_dir().join(format!("vidslam-imu-record-{}-{name}", std::process::id()))
 }
 
 #[test]
@@ -65,6 +63,7 @@ fn record_writes_every_packet_sent() {
     assert!(status.success());
     let log = fake.finish();
     let bytes = std::fs::read(&out).unwrap();
+    std::fs::remove_file(&out).unwrap();
     let (imu, other, failures) = split(&bytes);
     assert_eq!(failures, 0);
     // Everything the device streamed before it acknowledged "set idle", in order.
@@ -96,6 +95,7 @@ fn killed_recording_keeps_what_was_received() {
     child.kill().unwrap();
     child.wait().unwrap();
     let bytes = std::fs::read(&out).unwrap();
+    std::fs::remove_file(&out).unwrap();
     let (imu, _, failures) = split(&bytes);
     assert_eq!(failures, 0);
     assert!(

@@ -10,7 +10,7 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use vidslam_mip::descriptor::imu as imu_desc;
-use vidslam_mip::gx4::{Gx4, Gx4Options};
+use vidslam_mip::gx4::Gx4;
 use vidslam_mip::imu::ImuData;
 use vidslam_mip::sample::{SampleTimer, TimePreference};
 use vidslam_mip::{Decoder, DecoderStats};
@@ -223,7 +223,7 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
     }
     let out = std::fs::File::create(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let mut dev = Gx4::open(&a.port, a.baud, Gx4Options::default())?;
+    let mut dev = Gx4::open(&a.port, a.baud)?;
     let fields = [
         imu_desc::SCALED_ACCEL,
         imu_desc::SCALED_GYRO,

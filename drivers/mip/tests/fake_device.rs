@@ -10,7 +10,7 @@ mod common;
 use common::fake_gx4::{FakeGx4, Script};
 use vidslam_mip::command::{Command, Function};
 use vidslam_mip::descriptor::imu as d;
-use vidslam_mip::gx4::{Gx4, Gx4Error, Gx4Options};
+use vidslam_mip::gx4::{Gx4, Gx4Error};
 use vidslam_mip::imu::{GRAVITY_M_S2, ImuData};
 use vidslam_mip::sample::{DeviceTimeSource, ImuSample};
 use vidslam_mip::{Decoder, Packet};
@@ -78,7 +78,7 @@ fn configures_and_receives_every_sample() {
         packets: packets.clone(),
         ..Default::default()
     });
-    let mut dev = Gx4::open(fake.path(), 921_600, Gx4Options::default()).unwrap();
+    let mut dev = Gx4::open(fake.path(), 921_600).unwrap();
     dev.ping().unwrap();
     let info = dev.device_info().unwrap();
     assert_eq!(info.model_name.as_str(), "3DM-GX4-25");
@@ -121,7 +121,7 @@ fn garbage_on_the_line_loses_no_sample() {
         garbage_every: Some(3),
         ..Default::default()
     });
-    let mut dev = Gx4::open(fake.path(), 921_600, Gx4Options::default()).unwrap();
+    let mut dev = Gx4::open(fake.path(), 921_600).unwrap();
     dev.configure(200, &FIELDS).unwrap();
     let samples = receive_all(&mut dev, packets.len());
     check_samples(&samples, &packets);
@@ -143,7 +143,7 @@ fn mid_stream_disconnect_reopens_and_resumes() {
         disconnect_after: Some(150),
         ..Default::default()
     });
-    let mut dev = Gx4::open(fake.path(), 921_600, Gx4Options::default()).unwrap();
+    let mut dev = Gx4::open(fake.path(), 921_600).unwrap();
     dev.configure(200, &FIELDS).unwrap();
     let samples = receive_all(&mut dev, packets.len());
     check_samples(&samples, &packets);
@@ -165,7 +165,7 @@ fn mid_stream_disconnect_reopens_and_resumes() {
 
 #[test]
 fn unreachable_port_is_a_clear_error() {
-    let e = Gx4::open("/nonexistent/ttyGX4", 921_600, Gx4Options::default()).unwrap_err();
+    let e = Gx4::open("/nonexistent/ttyGX4", 921_600).unwrap_err();
     let msg = e.to_string();
     assert!(
         msg.starts_with("cannot open /nonexistent/ttyGX4 at 921600 baud"),
