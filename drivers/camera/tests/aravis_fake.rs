@@ -137,3 +137,27 @@ fn holding_every_pool_buffer_drops_frames_instead_of_allocating() {
     );
     cam.stop().unwrap();
 }
+
+#[test]
+fn mono16_frames_come_through_at_the_requested_size() {
+    let mut cam = AravisCamera::open("Fake_1").expect("open Fake_1");
+    let cfg = CameraConfig {
+        width_px: 320,
+        height_px: 240,
+        pixel_format: PixelFormat::Mono16,
+        ..config()
+    };
+    let applied = cam.configure(&cfg).unwrap();
+    assert_eq!(applied.pixel_format, PixelFormat::Mono16);
+    cam.start().unwrap();
+    for _ in 0..3 {
+        let f = cam.next_frame(Duration::from_secs(2)).unwrap();
+        assert_eq!(
+            (f.meta.width_px, f.meta.height_px, f.meta.pixel_format),
+            (320, 240, PixelFormat::Mono16)
+        );
+        assert_eq!(f.pixels().len(), 320 * 240 * 2);
+        assert_eq!(f.stride_bytes(), 640);
+    }
+    cam.stop().unwrap();
+}
