@@ -641,7 +641,7 @@ impl Drop for AravisCamera {
 
 /// Model, serial, formats and the notable features of an open camera.
 fn describe(name: &str, cam: &aravis::Camera) -> CameraInfo {
-    let s = |r: Result<glib_str::GString, aravis::glib::Error>| {
+    let s = |r: Result<aravis::glib::GString, aravis::glib::Error>| {
         r.map(|v| v.to_string()).unwrap_or_default()
     };
     let mut features = Vec::new();
@@ -715,8 +715,4 @@ fn describe(name: &str, cam: &aravis::Camera) -> CameraInfo {
             .unwrap_or_default(),
         features,
     }
-}
-
-mod glib_str {
-    pub use aravis::glib::GString;
 }
