@@ -349,7 +349,7 @@ impl AravisCamera {
             }
         }
         self.pool = Some(FramePool::new(config.pool_frames, config.frame_len_bytes()));
-        self.timer = FrameTimer::new(config.timestamp_latch, 0);
+        self.timer = FrameTimer::new(config.timestamp_latch, config.transfer_latency_ns);
         self.config = Some(config.clone());
         let applied = AppliedConfig {
             width_px: w as u32,
