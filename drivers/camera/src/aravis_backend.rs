@@ -38,6 +38,7 @@ use crate::frame_counter::FrameCounter;
 use crate::host_clock::realtime_to_monotonic_ns;
 use crate::pool::FramePool;
 use crate::timing::FrameTimer;
+use aravis::glib::prelude::Cast;
 use aravis::prelude::*;
 use std::ffi::{CStr, CString};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -121,6 +122,9 @@ pub struct AravisCamera {
     last_frame_host_ns: Option<i64>,
     last_frame_at: Instant,
     exposure_cache: Option<(Instant, f64)>,
+    gige_packet_resend: bool,
+    /// Incomplete buffers since the last good one (they also show up in the id gap).
+    incomplete_since_good: u64,
 }
 
 fn gerr(device: &str, operation: &str, e: impl std::fmt::Display) -> CameraError {
@@ -178,7 +182,23 @@ impl AravisCamera {
             last_frame_host_ns: None,
             last_frame_at: Instant::now(),
             exposure_cache: None,
+            gige_packet_resend: true,
+            incomplete_since_good: 0,
         })
+    }
+
+    /// GigE Vision only: ask the camera to resend lost packets (default on). With it off, a
+    /// lost packet makes the frame incomplete (counted, skipped), which is what a link without
+    /// resend support does.
+    pub fn set_gige_packet_resend(&mut self, enabled: bool) {
+        self.gige_packet_resend = enabled;
+    }
+
+    /// Fires the `TriggerSoftware` command (external-trigger mode with source `Software`).
+    pub fn software_trigger(&self) -> Result<(), CameraError> {
+        self.camera()?
+            .software_trigger()
+            .map_err(|e| gerr(&self.name, "software trigger", e))
     }
 
     /// Device clock skew against the host, ppm, once the clock model has it.
@@ -302,7 +322,18 @@ impl AravisCamera {
                 ),
             });
         }
-        let rate_hz = cam.frame_rate().ok();
+        if config.deliver_incomplete {
+            notes.push(
+                "Aravis: incomplete buffers are never delivered (their geometry, ids and stamps \
+                 are unreliable); they are counted and reported as dropped"
+                    .into(),
+            );
+        }
+        // In trigger mode the device's AcquisitionFrameRate says nothing about the frame rate.
+        let rate_hz = match config.acquisition {
+            Acquisition::FreeRunning { .. } => cam.frame_rate().ok(),
+            Acquisition::ExternalTrigger { .. } => None,
+        };
         if let (Acquisition::FreeRunning { rate_hz: want }, Some(got)) =
             (&config.acquisition, rate_hz)
         {
@@ -318,7 +349,7 @@ impl AravisCamera {
             }
         }
         self.pool = Some(FramePool::new(config.pool_frames, config.frame_len_bytes()));
-        self.timer = FrameTimer::new(config.timestamp_latch, 0);
+        self.timer = FrameTimer::new(config.timestamp_latch, config.transfer_latency_ns);
         self.config = Some(config.clone());
         let applied = AppliedConfig {
             width_px: w as u32,
@@ -342,6 +373,13 @@ impl AravisCamera {
         let stream = cam
             .create_stream()
             .map_err(|e| gerr(&dev, "create stream", e))?;
+        if let Some(gv) = stream.downcast_ref::<aravis::GvStream>() {
+            gv.set_packet_resend(if self.gige_packet_resend {
+                aravis::GvStreamPacketResend::Always
+            } else {
+                aravis::GvStreamPacketResend::Never
+            });
+        }
         for _ in 0..pool_frames {
             stream.push_buffer(aravis::Buffer::new_allocate(payload));
         }
@@ -350,6 +388,7 @@ impl AravisCamera {
         self.stream = Some(stream);
         self.last_frame_at = Instant::now();
         self.counter.reset();
+        self.incomplete_since_good = 0;
         Ok(())
     }
 
@@ -507,15 +546,26 @@ impl Camera for AravisCamera {
                 continue;
             };
             self.last_frame_at = Instant::now();
-            let status = buffer.status();
-            let size_ok = buffer.payload_type() == aravis::BufferPayloadType::Image
+            let n = config.frame_len_bytes();
+            // Only a `Success` buffer has reliable geometry, ids and stamps: anything else is
+            // counted and skipped (Aravis asserts on part accessors of leader-less buffers).
+            let good = buffer.status() == aravis::BufferStatus::Success
+                && buffer.payload_type() == aravis::BufferPayloadType::Image
                 && (buffer.image_width() as u32, buffer.image_height() as u32)
                     == (config.width_px, config.height_px)
-                && buffer.data().1 >= config.frame_len_bytes();
-            let (frame_id, missing) = self.counter.next(buffer.frame_id());
+                && buffer.data().1 >= n;
+            if !good {
+                self.stats.incomplete += 1;
+                self.incomplete_since_good += 1;
+                self.pending_drops = self.pending_drops.saturating_add(1);
+                stream.push_buffer(buffer);
+                continue;
+            }
+            let (frame_id, gap) = self.counter.next(buffer.frame_id());
             let host_receive_ns = realtime_to_monotonic_ns(buffer.system_timestamp() as i64);
             let device_ns = buffer.timestamp() as i64;
-            let mut missing = missing;
+            // The id gap includes the incomplete buffers just counted: do not count them twice.
+            let mut missing = gap.saturating_sub(std::mem::take(&mut self.incomplete_since_good));
             if std::mem::take(&mut self.gap_from_time) {
                 if let Some(last) = self.last_frame_host_ns {
                     let periods =
@@ -525,16 +575,6 @@ impl Camera for AravisCamera {
             }
             self.stats.missing += missing;
             self.pending_drops = self.pending_drops.saturating_add(missing as u32);
-            let complete = status == aravis::BufferStatus::Success && size_ok;
-            if !complete {
-                self.stats.incomplete += 1;
-            }
-            let deliver = complete || (config.deliver_incomplete && size_ok);
-            if !deliver {
-                self.pending_drops = self.pending_drops.saturating_add(1);
-                stream.push_buffer(buffer);
-                continue;
-            }
             let Some(mut out) = pool.take() else {
                 self.stats.pool_exhausted += 1;
                 self.pending_drops = self.pending_drops.saturating_add(1);
@@ -542,9 +582,8 @@ impl Camera for AravisCamera {
                 continue;
             };
             let (ptr, len) = buffer.data();
-            let n = config.frame_len_bytes();
             // SAFETY: Aravis owns `len` bytes at `ptr` until the buffer is pushed back, which
-            // happens below after the copy; `n <= len` was checked in `size_ok`.
+            // happens below after the copy; `n <= len` was checked above.
             let src = unsafe { std::slice::from_raw_parts(ptr as *const u8, len.min(n)) };
             out.as_mut_slice().copy_from_slice(src);
             stream.push_buffer(buffer);
@@ -560,7 +599,7 @@ impl Camera for AravisCamera {
                 exposure_us,
                 frame_time_ns,
                 flags: FrameFlags {
-                    incomplete: !complete,
+                    incomplete: false,
                     dropped_before: std::mem::take(&mut self.pending_drops),
                 },
             };
@@ -602,7 +641,7 @@ impl Drop for AravisCamera {
 
 /// Model, serial, formats and the notable features of an open camera.
 fn describe(name: &str, cam: &aravis::Camera) -> CameraInfo {
-    let s = |r: Result<glib_str::GString, aravis::glib::Error>| {
+    let s = |r: Result<aravis::glib::GString, aravis::glib::Error>| {
         r.map(|v| v.to_string()).unwrap_or_default()
     };
     let mut features = Vec::new();
@@ -676,8 +715,4 @@ fn describe(name: &str, cam: &aravis::Camera) -> CameraInfo {
             .unwrap_or_default(),
         features,
     }
-}
-
-mod glib_str {
-    pub use aravis::glib::GString;
 }

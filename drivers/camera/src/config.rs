@@ -71,6 +71,10 @@ pub struct CameraConfig {
     pub exposure: Exposure,
     pub gain: Gain,
     pub timestamp_latch: TimestampLatch,
+    /// Known minimum delay from the end of exposure to the host receiving the frame (readout +
+    /// transfer), ns; subtracted from clock-model frame times (see [`crate::timing`]). 0 leaves
+    /// that constant offset to the camera–IMU time-offset calibration.
+    pub transfer_latency_ns: i64,
     /// Frames the driver can lend to the consumer at once (pool size).
     pub pool_frames: usize,
     /// Hand on incomplete frames (flagged) instead of counting and skipping them.
@@ -90,6 +94,7 @@ impl Default for CameraConfig {
             },
             gain: Gain::Manual { gain: 0.0 },
             timestamp_latch: TimestampLatch::ExposureStart,
+            transfer_latency_ns: 0,
             pool_frames: 8,
             deliver_incomplete: false,
         }
@@ -124,6 +129,12 @@ impl CameraConfig {
                 ));
             }
             _ => {}
+        }
+        if self.transfer_latency_ns < 0 {
+            return Err(format!(
+                "transfer latency {} ns must not be negative",
+                self.transfer_latency_ns
+            ));
         }
         if self.pool_frames < 2 {
             return Err(format!(
