@@ -1,7 +1,7 @@
 //! `vidslam imu`: decode MIP recordings, record a GX4, encode EuRoC IMU data as a GX4 recording.
 
-use crate::dataset::euroc_imu::read_euroc_imu_csv;
 use crate::dataset::gx4_recording::encode_gx4_recording;
+use crate::dataset::read_imu_csv;
 use anyhow::{Context, bail};
 use clap::{Args, Subcommand};
 use serde::Serialize;
@@ -267,7 +267,7 @@ fn encode_euroc(a: &EncodeEurocArgs) -> anyhow::Result<()> {
     if !(a.seconds.is_finite() && a.seconds > 0.0) {
         bail!("--seconds must be a positive number, got {}", a.seconds);
     }
-    let rows = read_euroc_imu_csv(&a.csv)?;
+    let rows = read_imu_csv(&a.csv)?;
     if rows.is_empty() {
         bail!("{}: no IMU rows", a.csv.display());
     }
