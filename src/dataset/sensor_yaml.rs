@@ -169,13 +169,13 @@ pub fn isometry_from_matrix(m: &Matrix4<f64>) -> Result<Isometry3<f64>, String> 
 /// Reads `cam0/sensor.yaml`.
 pub fn read_camera_yaml(path: &Path) -> Result<CameraSensor, SensorYamlError> {
     let doc = Doc::load(path)?;
-    if let Some(model) = doc.str("camera_model")? {
-        if model != "pinhole" {
-            return Err(doc.err(
-                "camera_model",
-                format!("'{model}' is not supported (pinhole)"),
-            ));
-        }
+    if let Some(model) = doc.str("camera_model")?
+        && model != "pinhole"
+    {
+        return Err(doc.err(
+            "camera_model",
+            format!("'{model}' is not supported (pinhole)"),
+        ));
     }
     let res = doc.numbers("resolution", 2)?;
     let intr = doc.numbers("intrinsics", 4)?;

@@ -336,17 +336,15 @@ impl AravisCamera {
         };
         if let (Acquisition::FreeRunning { rate_hz: want }, Some(got)) =
             (&config.acquisition, rate_hz)
+            && (got - want).abs() > 1e-3 * want
         {
-            if (got - want).abs() > 1e-3 * want {
-                notes.push(format!("device runs at {got} Hz (requested {want} Hz)"));
-            }
+            notes.push(format!("device runs at {got} Hz (requested {want} Hz)"));
         }
         let exposure_us = cam.exposure_time().ok();
         if let (Exposure::Manual { exposure_us: want }, Some(got)) = (&config.exposure, exposure_us)
+            && (got - want).abs() > 1e-3 * want
         {
-            if (got - want).abs() > 1e-3 * want {
-                notes.push(format!("device exposes {got} us (requested {want} us)"));
-            }
+            notes.push(format!("device exposes {got} us (requested {want} us)"));
         }
         self.pool = Some(FramePool::new(config.pool_frames, config.frame_len_bytes()));
         self.timer = FrameTimer::new(config.timestamp_latch, config.transfer_latency_ns);
@@ -460,10 +458,9 @@ impl AravisCamera {
                 let stale = self
                     .exposure_cache
                     .is_none_or(|(at, _)| at.elapsed() > EXPOSURE_POLL_INTERVAL);
-                if stale {
-                    if let Some(v) = self.camera.as_ref().and_then(|c| c.exposure_time().ok()) {
-                        self.exposure_cache = Some((Instant::now(), v));
-                    }
+                if stale && let Some(v) = self.camera.as_ref().and_then(|c| c.exposure_time().ok())
+                {
+                    self.exposure_cache = Some((Instant::now(), v));
                 }
                 self.exposure_cache.map(|(_, v)| v)
             }
@@ -566,12 +563,11 @@ impl Camera for AravisCamera {
             let device_ns = buffer.timestamp() as i64;
             // The id gap includes the incomplete buffers just counted: do not count them twice.
             let mut missing = gap.saturating_sub(std::mem::take(&mut self.incomplete_since_good));
-            if std::mem::take(&mut self.gap_from_time) {
-                if let Some(last) = self.last_frame_host_ns {
-                    let periods =
-                        (host_receive_ns - last) as f64 * 1e-9 * config.acquisition.rate_hz();
-                    missing = (periods.round() as u64).saturating_sub(1);
-                }
+            if std::mem::take(&mut self.gap_from_time)
+                && let Some(last) = self.last_frame_host_ns
+            {
+                let periods = (host_receive_ns - last) as f64 * 1e-9 * config.acquisition.rate_hz();
+                missing = (periods.round() as u64).saturating_sub(1);
             }
             self.stats.missing += missing;
             self.pending_drops = self.pending_drops.saturating_add(missing as u32);
@@ -656,15 +652,15 @@ fn describe(name: &str, cam: &aravis::Camera) -> CameraInfo {
     if let Ok((_, _, w, h)) = cam.region() {
         push("Region_px", format!("{w}x{h}"));
     }
-    if cam.is_frame_rate_available().unwrap_or(false) {
-        if let (Ok(r), Ok((lo, hi))) = (cam.frame_rate(), cam.frame_rate_bounds()) {
-            push("AcquisitionFrameRate_hz", format!("{r} ({lo}..{hi})"));
-        }
+    if cam.is_frame_rate_available().unwrap_or(false)
+        && let (Ok(r), Ok((lo, hi))) = (cam.frame_rate(), cam.frame_rate_bounds())
+    {
+        push("AcquisitionFrameRate_hz", format!("{r} ({lo}..{hi})"));
     }
-    if cam.is_exposure_time_available().unwrap_or(false) {
-        if let (Ok(e), Ok((lo, hi))) = (cam.exposure_time(), cam.exposure_time_bounds()) {
-            push("ExposureTime_us", format!("{e} ({lo}..{hi})"));
-        }
+    if cam.is_exposure_time_available().unwrap_or(false)
+        && let (Ok(e), Ok((lo, hi))) = (cam.exposure_time(), cam.exposure_time_bounds())
+    {
+        push("ExposureTime_us", format!("{e} ({lo}..{hi})"));
     }
     push(
         "ExposureAuto",
@@ -672,10 +668,10 @@ fn describe(name: &str, cam: &aravis::Camera) -> CameraInfo {
             .unwrap_or(false)
             .to_string(),
     );
-    if cam.is_gain_available().unwrap_or(false) {
-        if let (Ok(g), Ok((lo, hi))) = (cam.gain(), cam.gain_bounds()) {
-            push("Gain", format!("{g} ({lo}..{hi})"));
-        }
+    if cam.is_gain_available().unwrap_or(false)
+        && let (Ok(g), Ok((lo, hi))) = (cam.gain(), cam.gain_bounds())
+    {
+        push("Gain", format!("{g} ({lo}..{hi})"));
     }
     push(
         "GainAuto",

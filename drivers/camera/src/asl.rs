@@ -81,10 +81,10 @@ pub fn read_cam0(cam0: &Path) -> Result<Vec<CamEntry>, CameraError> {
         let t_ns: i64 = t
             .parse()
             .map_err(|_| parse_err(format!("bad timestamp {t:?}")))?;
-        if let Some(prev) = entries.last().map(|e: &CamEntry| e.t_ns) {
-            if t_ns <= prev {
-                return Err(parse_err(format!("timestamp {t_ns} not after {prev}")));
-            }
+        if let Some(prev) = entries.last().map(|e: &CamEntry| e.t_ns)
+            && t_ns <= prev
+        {
+            return Err(parse_err(format!("timestamp {t_ns} not after {prev}")));
         }
         entries.push(CamEntry {
             t_ns,

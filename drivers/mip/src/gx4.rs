@@ -392,7 +392,7 @@ impl Gx4 {
         if rate_hz == 0 || rate_hz > base_rate_hz as u32 {
             return Err(bad_rate("the rate must be between 1 Hz and the base rate"));
         }
-        if base_rate_hz as u32 % rate_hz != 0 {
+        if !(base_rate_hz as u32).is_multiple_of(rate_hz) {
             return Err(bad_rate("the rate must divide the base rate evenly"));
         }
         let decimation = (base_rate_hz as u32 / rate_hz) as u16;

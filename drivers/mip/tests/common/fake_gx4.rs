@@ -273,7 +273,7 @@ fn run(script: Script, mut pty: Pty, link: &Path, stop: &AtomicBool) -> Log {
             next += 1;
             log.packets_sent += 1;
             if let Some(k) = script.garbage_every
-                && next % k == 0
+                && next.is_multiple_of(k)
                 && next + 4 < script.packets.len()
             {
                 let g = garbage(&mut seed);
