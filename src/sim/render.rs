@@ -591,8 +591,16 @@ mod tests {
         let (a, b) = (run(1), run(3));
         assert_eq!(a.image, b.image);
         assert_eq!(
-            a.depth_m.data().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-            b.depth_m.data().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+            a.depth_m
+                .data()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>(),
+            b.depth_m
+                .data()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
         );
         assert_eq!(a.missed_rays, 0);
         // Looking at the +x wall from x = 0.015: depth is positive and below the room size.
