@@ -106,6 +106,8 @@ pub fn host_monotonic_now() -> TimeNs {
     // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
     let rc = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     assert_eq!(rc, 0, "clock_gettime(CLOCK_MONOTONIC) failed");
+    // time_t / c_long are i32 on 32-bit ARM companion computers: the casts are not no-ops there.
+    #[allow(clippy::unnecessary_cast)]
     TimeNs(ts.tv_sec as i64 * TimeNs::NS_PER_S + ts.tv_nsec as i64)
 }
 

@@ -4,8 +4,8 @@
 
 use std::path::{Path, PathBuf};
 use vidslam::cli::imu::decode_file;
-use vidslam::dataset::euroc_imu::read_euroc_imu_csv;
 use vidslam::dataset::gx4_recording::{encode_gx4_recording, gx4_packets};
+use vidslam::dataset::read_imu_csv;
 use vidslam_mip::Decoder;
 use vidslam_mip::imu::{INTERNAL_TICK_HZ, ImuData};
 use vidslam_timesync::TickUnwrapper;
@@ -72,7 +72,7 @@ fn fixture_is_a_clean_200hz_gx4_stream_across_tick_wraparound() {
 fn fixture_reencodes_byte_for_byte_and_decodes_to_what_was_encoded() {
     let Some(dir) = shared_data() else { return };
     let csv = dir.join("euroc/V1_01_easy_micro/mav0/imu0/data.csv");
-    let rows = read_euroc_imu_csv(&csv).unwrap();
+    let rows = read_imu_csv(&csv).unwrap();
     let expected = gx4_packets(&rows, 5.0);
     let bytes = encode_gx4_recording(&rows, 5.0);
     assert_eq!(
@@ -83,7 +83,7 @@ fn fixture_reencodes_byte_for_byte_and_decodes_to_what_was_encoded() {
     assert_eq!(decode_imu(&bytes), expected);
     // Units survive: accel back in m/s² within f32 rounding.
     let a = expected[0].accel_g.unwrap()[0] as f64 * vidslam_mip::imu::GRAVITY_M_S2;
-    assert!((a - rows[0].accel_m_s2[0]).abs() < 1e-5);
+    assert!((a - rows[0].accel_m_s2.x).abs() < 1e-5);
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! `vidslam imu`: decode MIP recordings, record a GX4, encode EuRoC IMU data as a GX4 recording.
 
-use crate::dataset::euroc_imu::read_euroc_imu_csv;
 use crate::dataset::gx4_recording::encode_gx4_recording;
+use crate::dataset::read_imu_csv;
 use anyhow::{Context, bail};
 use clap::{Args, Subcommand};
 use serde::Serialize;
@@ -10,7 +10,7 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use vidslam_mip::descriptor::imu as imu_desc;
-use vidslam_mip::gx4::{Gx4, Gx4Options};
+use vidslam_mip::gx4::Gx4;
 use vidslam_mip::imu::ImuData;
 use vidslam_mip::sample::{SampleTimer, TimePreference};
 use vidslam_mip::{Decoder, DecoderStats};
@@ -223,7 +223,7 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
     }
     let out = std::fs::File::create(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let mut dev = Gx4::open(&a.port, a.baud, Gx4Options::default())?;
+    let mut dev = Gx4::open(&a.port, a.baud)?;
     let fields = [
         imu_desc::SCALED_ACCEL,
         imu_desc::SCALED_GYRO,
@@ -241,10 +241,14 @@ fn record(a: &RecordArgs) -> anyhow::Result<()> {
         format.base_rate_hz,
         a.out.display()
     );
-    let started = Instant::now();
-    let limit = a.seconds.map(Duration::from_secs_f64);
-    while limit.is_none_or(|l| started.elapsed() < l) {
-        dev.next_sample()?;
+    match a.seconds {
+        Some(s) => {
+            let deadline = Instant::now() + Duration::from_secs_f64(s);
+            while dev.next_sample_before(deadline)?.is_some() {}
+        }
+        None => loop {
+            dev.next_sample()?;
+        },
     }
     dev.stop()?;
     let c = dev.counters();
@@ -263,7 +267,7 @@ fn encode_euroc(a: &EncodeEurocArgs) -> anyhow::Result<()> {
     if !(a.seconds.is_finite() && a.seconds > 0.0) {
         bail!("--seconds must be a positive number, got {}", a.seconds);
     }
-    let rows = read_euroc_imu_csv(&a.csv)?;
+    let rows = read_imu_csv(&a.csv)?;
     if rows.is_empty() {
         bail!("{}: no IMU rows", a.csv.display());
     }

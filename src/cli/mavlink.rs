@@ -18,7 +18,7 @@ use crate::dataset::{Trajectory, TrajectoryFormat};
 use crate::geometry::log_so3;
 use crate::output::{
     CovarianceFallback, Endpoint, FcFrames, LocalFrame, MavlinkSender, MessageConfig, MessageSet,
-    OdometrySample, SenderConfig, SenderStats, TimeBase,
+    OdometrySample, SenderConfig, TimeBase,
 };
 use crate::time::{TimeNs, host_monotonic_now};
 use anyhow::{Context, bail};
@@ -73,50 +73,12 @@ pub struct PlayArgs {
     /// whoever sends to us).
     #[arg(long, default_value = "udpout:127.0.0.1:14550")]
     pub to: Endpoint,
-    /// Output rate of the pose messages, Hz (PX4 asks for 30 Hz when covariances are sent).
-    #[arg(long, default_value_t = 30.0)]
-    pub rate_hz: f64,
-    /// Pace the output in real time (default: as fast as the socket takes it).
+    /// Pace the output in real time (default: as fast as the socket takes it; a receiver may then
+    /// drop datagrams its socket buffer cannot hold).
     #[arg(long)]
     pub realtime: bool,
-    /// MAVLink system id (normally the vehicle's).
-    #[arg(long, default_value_t = 1)]
-    pub system_id: u8,
-    /// MAVLink component id (197 = MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
-    #[arg(long, default_value_t = 197)]
-    pub component_id: u8,
-    /// ODOMETRY frame_id: frd = MAV_FRAME_LOCAL_FRD (arbitrary heading), ned = MAV_FRAME_LOCAL_NED
-    /// (asserts the trajectory's world x axis points north).
-    #[arg(long, value_enum, default_value_t)]
-    pub frame: LocalFrame,
-    /// odometry = ODOMETRY #331; legacy = VISION_POSITION_ESTIMATE #102 + VISION_SPEED_ESTIMATE #103.
-    #[arg(long, value_enum, default_value_t)]
-    pub messages: MessageSet,
-    /// IMU mounting: rotation from the IMU frame to the vehicle FRD body frame as
-    /// "roll,pitch,yaw" degrees (Rz(yaw) Ry(pitch) Rx(roll)). 180,0,0 = IMU x forward, y left, z up.
-    #[arg(long, default_value = "180,0,0", allow_hyphen_values = true)]
-    pub mount_rpy_deg: MountRpyDeg,
-    /// Position standard deviation sent in pose_covariance, m (with --attitude-std-rad;
-    /// without both the covariance is sent as unknown).
-    #[arg(long, requires = "attitude_std_rad")]
-    pub position_std_m: Option<f64>,
-    /// Attitude standard deviation sent in pose_covariance, rad (with --position-std-m).
-    #[arg(long, requires = "position_std_m")]
-    pub attitude_std_rad: Option<f64>,
-    /// Linear velocity standard deviation sent in velocity_covariance, m/s (with
-    /// --angular-rate-std-rad-s; without both the covariance is sent as unknown).
-    #[arg(long, requires = "angular_rate_std_rad_s")]
-    pub velocity_std_m_s: Option<f64>,
-    /// Angular rate standard deviation sent in velocity_covariance, rad/s (with --velocity-std-m-s).
-    #[arg(long, requires = "velocity_std_m_s")]
-    pub angular_rate_std_rad_s: Option<f64>,
-    /// Clock of time_usec: companion = host monotonic (PX4 and ArduPilot convert it themselves);
-    /// fc = the flight controller's clock from our own TIMESYNC requests, once converged.
-    #[arg(long, value_enum, default_value_t)]
-    pub time_base: TimeBase,
-    /// TIMESYNC replies with a longer round trip are ignored, ms (--time-base fc).
-    #[arg(long, default_value_t = 10.0)]
-    pub timesync_max_rtt_ms: f64,
+    #[command(flatten)]
+    pub output: MavlinkOutputArgs,
     /// Trajectory gaps longer than this are not interpolated across; the stream resumes after
     /// them with reset_counter + 1, s.
     #[arg(long, default_value_t = 0.5)]
@@ -139,6 +101,101 @@ pub struct PlayArgs {
         help_heading = "Testing"
     )]
     pub inject_nan_at: Vec<usize>,
+}
+
+/// The sender options shared by every command that streams to a flight controller
+/// (`mavlink play`; `replay --mavlink` can `#[command(flatten)]` them too).
+#[derive(Args, Debug, Clone)]
+pub struct MavlinkOutputArgs {
+    /// Output rate of the pose messages, Hz (PX4 asks for 30 Hz when covariances are sent).
+    #[arg(long, default_value_t = 30.0)]
+    pub rate_hz: f64,
+    /// MAVLink system id (normally the vehicle's).
+    #[arg(long, default_value_t = 1)]
+    pub system_id: u8,
+    /// MAVLink component id (197 = MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
+    #[arg(long, default_value_t = 197)]
+    pub component_id: u8,
+    /// ODOMETRY frame_id: frd = MAV_FRAME_LOCAL_FRD (arbitrary heading), ned = MAV_FRAME_LOCAL_NED
+    /// (asserts the world x axis points north).
+    #[arg(long, value_enum, default_value_t)]
+    pub frame: LocalFrame,
+    /// odometry = ODOMETRY #331; legacy = VISION_POSITION_ESTIMATE #102 + VISION_SPEED_ESTIMATE #103.
+    #[arg(long, value_enum, default_value_t)]
+    pub messages: MessageSet,
+    /// IMU mounting: rotation from the IMU frame to the vehicle FRD body frame as
+    /// "roll,pitch,yaw" degrees (Rz(yaw) Ry(pitch) Rx(roll)). 180,0,0 = IMU x forward, y left, z up.
+    #[arg(long, default_value = "180,0,0", allow_hyphen_values = true)]
+    pub mount_rpy_deg: MountRpyDeg,
+    /// Position standard deviation sent in pose_covariance when the estimator gives none, m
+    /// (with --attitude-std-rad; without both the covariance is sent as unknown).
+    #[arg(long, requires = "attitude_std_rad")]
+    pub position_std_m: Option<f64>,
+    /// Attitude standard deviation sent in pose_covariance when the estimator gives none, rad
+    /// (with --position-std-m).
+    #[arg(long, requires = "position_std_m")]
+    pub attitude_std_rad: Option<f64>,
+    /// Linear velocity standard deviation sent in velocity_covariance when the estimator gives
+    /// none, m/s (with --angular-rate-std-rad-s; without both it is sent as unknown).
+    #[arg(long, requires = "angular_rate_std_rad_s")]
+    pub velocity_std_m_s: Option<f64>,
+    /// Angular rate standard deviation sent in velocity_covariance, rad/s (with --velocity-std-m-s).
+    #[arg(long, requires = "velocity_std_m_s")]
+    pub angular_rate_std_rad_s: Option<f64>,
+    /// Clock of time_usec: companion = host monotonic (PX4 and ArduPilot convert it themselves);
+    /// fc = the flight controller's clock from our own TIMESYNC requests, once converged.
+    #[arg(long, value_enum, default_value_t)]
+    pub time_base: TimeBase,
+    /// TIMESYNC replies with a longer round trip are ignored, ms (--time-base fc).
+    #[arg(long, default_value_t = 10.0)]
+    pub timesync_max_rtt_ms: f64,
+}
+
+impl MavlinkOutputArgs {
+    /// The sender configuration for `endpoint`; errors name the offending flag.
+    pub fn sender_config(&self, endpoint: Endpoint) -> anyhow::Result<SenderConfig> {
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
+            bail!("--rate-hz must be > 0, got {}", self.rate_hz);
+        }
+        if !(self.timesync_max_rtt_ms.is_finite() && self.timesync_max_rtt_ms > 0.0) {
+            bail!(
+                "--timesync-max-rtt-ms must be > 0, got {}",
+                self.timesync_max_rtt_ms
+            );
+        }
+        for (flag, v) in [
+            ("--position-std-m", self.position_std_m),
+            ("--attitude-std-rad", self.attitude_std_rad),
+            ("--velocity-std-m-s", self.velocity_std_m_s),
+            ("--angular-rate-std-rad-s", self.angular_rate_std_rad_s),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && v >= 0.0)
+            {
+                bail!("{flag} must be finite and >= 0, got {v}");
+            }
+        }
+        let [r, p, y] = self.mount_rpy_deg.0.map(f64::to_radians);
+        Ok(SenderConfig {
+            system_id: self.system_id,
+            component_id: self.component_id,
+            messages: MessageConfig {
+                frames: FcFrames::from_mount_rpy_rad(r, p, y),
+                local_frame: self.frame,
+                message_set: self.messages,
+                covariance: CovarianceFallback {
+                    position_std_m: self.position_std_m,
+                    attitude_std_rad: self.attitude_std_rad,
+                    velocity_std_m_s: self.velocity_std_m_s,
+                    angular_rate_std_rad_s: self.angular_rate_std_rad_s,
+                },
+            },
+            rate_hz: self.rate_hz,
+            time_base: self.time_base,
+            timesync_max_rtt_ns: (self.timesync_max_rtt_ms * 1e6).round() as i64,
+            ..SenderConfig::new(endpoint)
+        })
+    }
 }
 
 /// One playback sample before stamping, `index` on the output grid.
@@ -205,58 +262,6 @@ pub fn playback_samples(traj: &Trajectory, rate_hz: f64, max_gap_ns: i64) -> Vec
     out
 }
 
-fn sender_config(a: &PlayArgs) -> SenderConfig {
-    let [r, p, y] = a.mount_rpy_deg.0.map(f64::to_radians);
-    SenderConfig {
-        system_id: a.system_id,
-        component_id: a.component_id,
-        messages: MessageConfig {
-            frames: FcFrames::from_mount_rpy_rad(r, p, y),
-            local_frame: a.frame,
-            message_set: a.messages,
-            covariance: CovarianceFallback {
-                position_std_m: a.position_std_m,
-                attitude_std_rad: a.attitude_std_rad,
-                velocity_std_m_s: a.velocity_std_m_s,
-                angular_rate_std_rad_s: a.angular_rate_std_rad_s,
-            },
-        },
-        rate_hz: a.rate_hz,
-        time_base: a.time_base,
-        timesync_max_rtt_ns: (a.timesync_max_rtt_ms * 1e6).round() as i64,
-        ..SenderConfig::new(a.to.clone())
-    }
-}
-
-fn summary(s: &SenderStats, a: &PlayArgs) -> String {
-    let kind = match a.messages {
-        MessageSet::Odometry => "ODOMETRY",
-        MessageSet::Legacy => "VISION_POSITION_ESTIMATE+VISION_SPEED_ESTIMATE",
-    };
-    format!(
-        "mavlink play: {} {kind} sent to {} ({} samples in; dropped: {} non-finite, {} queue full, \
-         {} decimated, {} no peer, {} failed-quality in legacy mode; {} send errors); \
-         {} HEARTBEAT, {} TIMESYNC replies, {} TIMESYNC requests ({} accepted); reset_counter {}; \
-         received {} messages, {} corrupt/unknown bytes skipped",
-        s.pose_samples_sent,
-        a.to,
-        s.samples_in,
-        s.dropped_non_finite,
-        s.dropped_queue_full,
-        s.decimated,
-        s.not_sent_no_peer,
-        s.failed_not_sent,
-        s.send_errors,
-        s.heartbeats_sent,
-        s.timesync_replies_sent,
-        s.timesync_requests_sent,
-        s.timesync_samples_accepted,
-        s.reset_counter,
-        s.rx_messages,
-        s.rx_bytes_skipped,
-    )
-}
-
 /// Runs `vidslam mavlink ...`.
 pub fn run(args: MavlinkArgs) -> anyhow::Result<()> {
     match args.command {
@@ -265,21 +270,13 @@ pub fn run(args: MavlinkArgs) -> anyhow::Result<()> {
 }
 
 fn play(a: &PlayArgs) -> anyhow::Result<()> {
-    if !(a.rate_hz.is_finite() && a.rate_hz > 0.0) {
-        bail!("--rate-hz must be > 0, got {}", a.rate_hz);
-    }
     if !(a.max_gap_s.is_finite() && a.max_gap_s > 0.0) {
         bail!("--max-gap-s must be > 0, got {}", a.max_gap_s);
     }
-    if !(a.timesync_max_rtt_ms.is_finite() && a.timesync_max_rtt_ms > 0.0) {
-        bail!(
-            "--timesync-max-rtt-ms must be > 0, got {}",
-            a.timesync_max_rtt_ms
-        );
-    }
+    let config = a.output.sender_config(a.to.clone())?;
     let (traj, format) = Trajectory::read(&a.trajectory)?;
-    let samples = playback_samples(&traj, a.rate_hz, (a.max_gap_s * 1e9).round() as i64);
-    let sender = MavlinkSender::start(sender_config(a))
+    let samples = playback_samples(&traj, config.rate_hz, (a.max_gap_s * 1e9).round() as i64);
+    let sender = MavlinkSender::start(config)
         .with_context(|| format!("starting the MAVLink sender towards {}", a.to))?;
     let fmt = match format {
         TrajectoryFormat::Tum => "TUM",
@@ -290,7 +287,7 @@ fn play(a: &PlayArgs) -> anyhow::Result<()> {
         a.trajectory.display(),
         traj.len(),
         samples.len(),
-        a.rate_hz,
+        a.output.rate_hz,
         a.to,
         sender
             .local_addr()
@@ -324,7 +321,7 @@ fn play(a: &PlayArgs) -> anyhow::Result<()> {
     }
     let last_error = sender.last_send_error();
     let stats = sender.finish();
-    eprintln!("{}", summary(&stats, a));
+    eprintln!("mavlink play: {}", stats.summary());
     if let Some(e) = last_error {
         eprintln!("mavlink play: last send error: {e}");
     }

@@ -1,5 +1,6 @@
 //! The `vidslam` command line: one subcommand per module here.
 
+pub mod camera;
 pub mod dataset;
 pub mod eval;
 pub mod imu;
@@ -29,6 +30,8 @@ pub enum Command {
     Imu(imu::ImuArgs),
     /// MAVLink output to a flight controller (trajectory playback to test an FC setup).
     Mavlink(mavlink::MavlinkArgs),
+    /// Camera drivers: list devices, show one, record frames (`camera --help`).
+    Camera(camera::CameraArgs),
 }
 
 /// Runs the parsed command line.
@@ -39,5 +42,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(args) => eval::run(&args),
         Command::Imu(args) => imu::run(args),
         Command::Mavlink(a) => mavlink::run(a),
+        Command::Camera(args) => camera::run(args),
     }
 }

@@ -189,9 +189,21 @@ impl Iterator for ImuIter {
 }
 
 impl ImuIter {
+    /// Streams an EuRoC `imu0/data.csv` file (timestamp ns, gyro xyz rad/s, accel xyz m/s^2).
+    pub fn open(path: &Path) -> Result<Self, DatasetError> {
+        Ok(ImuIter {
+            rows: CsvRows::open(path)?,
+        })
+    }
+
     pub fn path(&self) -> &Path {
         self.rows.path()
     }
+}
+
+/// Reads a whole EuRoC IMU CSV file; errors name the file and line.
+pub fn read_imu_csv(path: &Path) -> Result<Vec<ImuSample>, DatasetError> {
+    ImuIter::open(path)?.collect()
 }
 
 /// Merged, time-ordered stream of IMU samples and frames.

@@ -12,7 +12,7 @@
 //! * internal ticks at 62.5 kHz starting [`FIRST_TICK`], 2 s before the u32 wraps, so every
 //!   recording longer than 2 s exercises the wraparound.
 
-use super::euroc_imu::EurocImuRow;
+use crate::imu::ImuSample;
 use vidslam_mip::imu::{GRAVITY_M_S2, GpsTimestamp, INTERNAL_TICK_HZ, ImuData, gps_flags};
 use vidslam_mip::wire::MAX_PACKET_LEN;
 
@@ -26,15 +26,17 @@ pub const FIRST_TICK: u32 = u32::MAX - 2 * INTERNAL_TICK_HZ as u32 + 1;
 pub const NOMINAL_PERIOD_NS: i64 = 5_000_000;
 
 /// The parsed packet for one row (`prev_t_ns`: previous row's time, for the deltas).
-pub fn gx4_packet_for(row: &EurocImuRow, prev_t_ns: Option<i64>, first_t_ns: i64) -> ImuData {
-    let dt_s = (row.t_ns - prev_t_ns.unwrap_or(row.t_ns - NOMINAL_PERIOD_NS)) as f64 * 1e-9;
-    let accel_g = row.accel_m_s2.map(|a| a / GRAVITY_M_S2);
-    let ticks = ((row.t_ns - first_t_ns) as i128 * INTERNAL_TICK_HZ as i128 / 1_000_000_000) as u32;
-    let gps_ns = row.t_ns - GPS_EPOCH_UNIX_S * 1_000_000_000 + GPS_UTC_LEAP_S_2014 * 1_000_000_000;
+pub fn gx4_packet_for(row: &ImuSample, prev_t_ns: Option<i64>, first_t_ns: i64) -> ImuData {
+    let t_ns = row.t.0;
+    let dt_s = (t_ns - prev_t_ns.unwrap_or(t_ns - NOMINAL_PERIOD_NS)) as f64 * 1e-9;
+    let accel_g: [f64; 3] = (row.accel_m_s2 / GRAVITY_M_S2).into();
+    let gyro_rad_s: [f64; 3] = row.gyro_rad_s.into();
+    let ticks = ((t_ns - first_t_ns) as i128 * INTERNAL_TICK_HZ as i128 / 1_000_000_000) as u32;
+    let gps_ns = t_ns - GPS_EPOCH_UNIX_S * 1_000_000_000 + GPS_UTC_LEAP_S_2014 * 1_000_000_000;
     ImuData {
         accel_g: Some(accel_g.map(|a| a as f32)),
-        gyro_rad_s: Some(row.gyro_rad_s.map(|w| w as f32)),
-        delta_theta_rad: Some(row.gyro_rad_s.map(|w| (w * dt_s) as f32)),
+        gyro_rad_s: Some(gyro_rad_s.map(|w| w as f32)),
+        delta_theta_rad: Some(gyro_rad_s.map(|w| (w * dt_s) as f32)),
         delta_velocity_g_s: Some(accel_g.map(|a| (a * dt_s) as f32)),
         internal_ticks: Some(FIRST_TICK.wrapping_add(ticks)),
         gps_time: Some(GpsTimestamp::from_gps_ns(
@@ -46,24 +48,24 @@ pub fn gx4_packet_for(row: &EurocImuRow, prev_t_ns: Option<i64>, first_t_ns: i64
 }
 
 /// The parsed packets for the rows within `seconds` of the first one.
-pub fn gx4_packets(rows: &[EurocImuRow], seconds: f64) -> Vec<ImuData> {
+pub fn gx4_packets(rows: &[ImuSample], seconds: f64) -> Vec<ImuData> {
     let Some(first) = rows.first() else {
         return Vec::new();
     };
-    let end_ns = first.t_ns + (seconds * 1e9).round() as i64;
+    let end_ns = first.t.0 + (seconds * 1e9).round() as i64;
     let mut prev = None;
     rows.iter()
-        .take_while(|r| r.t_ns < end_ns)
+        .take_while(|r| r.t.0 < end_ns)
         .map(|r| {
-            let p = gx4_packet_for(r, prev, first.t_ns);
-            prev = Some(r.t_ns);
+            let p = gx4_packet_for(r, prev, first.t.0);
+            prev = Some(r.t.0);
             p
         })
         .collect()
 }
 
 /// The recording bytes: the packets of [`gx4_packets`] back to back.
-pub fn encode_gx4_recording(rows: &[EurocImuRow], seconds: f64) -> Vec<u8> {
+pub fn encode_gx4_recording(rows: &[ImuSample], seconds: f64) -> Vec<u8> {
     let mut out = Vec::new();
     let mut buf = [0u8; MAX_PACKET_LEN];
     for p in gx4_packets(rows, seconds) {

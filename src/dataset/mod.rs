@@ -3,7 +3,6 @@
 
 mod asl;
 mod csv_lines;
-pub mod euroc_imu;
 mod groundtruth;
 pub mod gx4_recording;
 mod sensor_yaml;
@@ -12,6 +11,7 @@ mod writer;
 
 pub use asl::{
     AslDataset, DEPTH_PNG_UNITS_PER_M, Event, EventIter, FrameIter, FrameRecord, ImuIter,
+    read_imu_csv,
 };
 pub use groundtruth::{GroundTruth, GroundTruthState, read_groundtruth};
 pub use sensor_yaml::{

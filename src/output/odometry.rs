@@ -344,9 +344,25 @@ mod tests {
         let mut c = Matrix6::zeros();
         c[(2, 2)] = 9.0;
         s.pose_covariance = Some(c);
+        // A world-frame velocity covariance along world x, seen from the body yawed 0.5 rad left
+        // (FLU IMU, FRD body): rotated into the body frame, trace kept, x/y correlated.
+        let mut cv = Matrix3::zeros();
+        cv[(0, 0)] = 4.0;
+        s.velocity_covariance = Some(cv);
         let o = cfg.odometry(&s, STAMP);
         assert_eq!(o.pose_covariance[11], 9.0);
         assert_eq!(o.pose_covariance[0], 0.0);
+        let (c, sn) = (0.5f32.cos(), 0.5f32.sin());
+        let v = &o.velocity_covariance;
+        assert!(
+            (v[0] - 4.0 * c * c).abs() < 1e-6 && (v[6] - 4.0 * sn * sn).abs() < 1e-6,
+            "{v:?}"
+        );
+        assert!((v[1] - 4.0 * c * sn).abs() < 1e-6, "FRD y = -FLU y: {v:?}");
+        assert!(
+            (v[15] - 1e-4).abs() < 1e-9,
+            "rate block from the fallback: {v:?}"
+        );
     }
 
     #[test]

@@ -150,6 +150,36 @@ pub struct SenderStats {
     pub fc_time_offset_ns: Option<i64>,
 }
 
+impl SenderStats {
+    /// One line for logs: what was sent, what was dropped and why.
+    pub fn summary(&self) -> String {
+        format!(
+            "{} pose samples sent ({} in; dropped: {} non-finite, {} queue full, {} decimated, \
+             {} without peer, {} failed in legacy mode, {} after stop; {} send errors); \
+             {} HEARTBEAT, {} TIMESYNC replies, {} TIMESYNC requests ({} samples accepted{}); \
+             reset_counter {}; received {} messages, {} corrupt or unknown bytes skipped",
+            self.pose_samples_sent,
+            self.samples_in,
+            self.dropped_non_finite,
+            self.dropped_queue_full,
+            self.decimated,
+            self.not_sent_no_peer,
+            self.failed_not_sent,
+            self.dropped_sender_gone,
+            self.send_errors,
+            self.heartbeats_sent,
+            self.timesync_replies_sent,
+            self.timesync_requests_sent,
+            self.timesync_samples_accepted,
+            self.fc_time_offset_ns
+                .map_or(String::new(), |o| format!(", FC clock offset {o} ns")),
+            self.reset_counter,
+            self.rx_messages,
+            self.rx_bytes_skipped,
+        )
+    }
+}
+
 #[derive(Default)]
 struct Counters {
     samples_in: AtomicU64,
