@@ -67,10 +67,10 @@ fn sim_cli_writes_a_readable_deterministic_dataset() {
         let o = run(dir, seed);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
-    let stdout = String::from_utf8_lossy(&run(&a, "5").stderr).to_string();
+    let refused = String::from_utf8_lossy(&run(&a, "5").stderr).to_string();
     assert!(
-        stdout.contains("already exists") && stdout.contains("--force"),
-        "{stdout}"
+        refused.contains("already exists") && refused.contains("--force"),
+        "{refused}"
     );
 
     let ds = AslDataset::open(&a).unwrap();

@@ -38,7 +38,7 @@ fn noise_free_imu_integrates_to_the_ground_truth_pose_over_10_s() {
     let imu: Vec<ImuSample> = ds.imu_samples().unwrap().map(|s| s.unwrap()).collect();
     let gt = ds.ground_truth().unwrap().unwrap();
     assert_eq!(imu.len(), gt.states.len());
-    // Window 8 s .. 18 s: figure-eight laps at up to ~2.5 m/s with climbs and banked turns.
+    // Window 8 s .. 18 s: figure-eight laps at up to 1.7 m/s with climbs and banked turns.
     let (ia, ib) = (8 * 200, 18 * 200);
     let (a, b) = (&gt.states[ia], &gt.states[ib]);
     assert_eq!((imu[ia].t, imu[ib].t), (a.t, b.t));

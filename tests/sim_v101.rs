@@ -54,6 +54,7 @@ fn s_v101_uses_the_real_imu_byte_identically_and_frames_lie_inside_both_spans() 
         report.fit.rotation_rms_rad.to_degrees(),
         report.fit.position_max_m * 1e3
     );
+    eprintln!("notes: {:?}", report.notes);
 
     let imu_text = std::fs::read_to_string(&imu_in).unwrap();
     let gt_text = std::fs::read_to_string(&gt_in).unwrap();

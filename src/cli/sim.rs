@@ -40,7 +40,7 @@ pub struct SimArgs {
     /// Ideal data: no motion blur, vignetting, auto exposure or image noise; noise-free, bias-free IMU.
     #[arg(long)]
     pub no_noise: bool,
-    /// Spline knot spacing, s (0.05 follows 200 Hz Vicon ground truth to about a millimetre).
+    /// Spline knot spacing, s (0.05 follows the 200 Hz Vicon ground truth of EuRoC V1_01 to 0.05 mm RMS).
     #[arg(long, default_value_t = 0.05)]
     pub knot_spacing_s: f64,
     /// Replace an existing dataset in --out.

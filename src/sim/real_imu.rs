@@ -6,7 +6,9 @@
 //! average of `e` over [`BIAS_WINDOW_S`] (truncated at the ends). White noise and vibration
 //! average out; what remains is the bias plus the slowly varying part of the spline's error (the
 //! Vicon-to-gravity alignment, accelerations the 20 Hz-bandwidth spline cannot follow) — an
-//! estimate, not a measurement: the real biases of the recording are unknown.
+//! estimate, not a measurement: the real biases of the recording are unknown. The generator first
+//! levels the world frame with [`estimate_gravity_tilt`], so that the tilt of the motion-capture
+//! frame does not leak into the accelerometer bias.
 
 use super::imu_synth::ideal_imu;
 use super::spline::PoseSpline;
@@ -114,6 +116,41 @@ pub fn read_real_imu(path: &Path) -> Result<Vec<RawImuRow>, RealImuError> {
     Ok(rows)
 }
 
+/// Tilt `(θx, θy)` (rad, rotations about the world x and y axes) of gravity in the trajectory's
+/// world frame: the true gravity is `exp([θx, θy, 0]^) · (0, 0, -g)`. Estimated by linear least
+/// squares from `meas - ideal = b_a + R_world_bodyᵀ (g θy, -g θx, 0)` over all samples, with a
+/// constant accelerometer bias `b_a`: the tilt rotates with the vehicle's heading, the bias does
+/// not, so the two separate when the heading varies. `None` when they do not (condition > 1e4).
+pub fn estimate_gravity_tilt(spline: &PoseSpline, samples: &[ImuSample]) -> Option<[f64; 2]> {
+    use crate::geometry::GRAVITY_M_S2 as G;
+    let mut h = nalgebra::SMatrix::<f64, 5, 5>::zeros();
+    let mut r = nalgebra::SVector::<f64, 5>::zeros();
+    for s in samples {
+        let st = spline.state(s.t);
+        let rt = st.t_world_body.rotation.inverse();
+        let e = s.accel_m_s2 - ideal_imu(spline, s.t).accel_m_s2;
+        let (u, w) = (
+            rt * Vector3::new(0.0, -G, 0.0),
+            rt * Vector3::new(G, 0.0, 0.0),
+        );
+        for row in 0..3 {
+            let mut j = nalgebra::SVector::<f64, 5>::zeros();
+            j[row] = 1.0;
+            j[3] = u[row];
+            j[4] = w[row];
+            h += j * j.transpose();
+            r += j * e[row];
+        }
+    }
+    let eig = h.symmetric_eigen().eigenvalues;
+    let (lo, hi) = (eig.min(), eig.max());
+    if !(lo > 0.0 && hi / lo < 1e4) {
+        return None;
+    }
+    let x = h.cholesky()?.solve(&r);
+    Some([x[3], x[4]])
+}
+
 /// Bias estimates `(gyro rad/s, accel m/s²)` at every sample (see the module docs).
 pub fn estimate_biases(
     spline: &PoseSpline,
@@ -149,6 +186,41 @@ pub fn estimate_biases(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sim::fit::fit_pose_spline;
+    use crate::sim::flights::builtin_flight;
+    use nalgebra::Isometry3;
+
+    #[test]
+    fn gravity_tilt_and_constant_bias_are_recovered_and_biases_follow() {
+        let tr = builtin_flight("demo", &Isometry3::identity()).unwrap();
+        let (sp, _) = fit_pose_spline(&tr.poses, 50_000_000).unwrap();
+        let bias_a = Vector3::new(0.05, -0.3, 0.1);
+        let bias_g = Vector3::new(0.01, 0.02, -0.03);
+        let samples: Vec<ImuSample> = (0..8000)
+            .map(|k| {
+                let m = ideal_imu(&sp, sp.start().add_ns(k * 5_000_000));
+                ImuSample {
+                    t: m.t,
+                    gyro_rad_s: m.gyro_rad_s + bias_g,
+                    accel_m_s2: m.accel_m_s2 + bias_a,
+                }
+            })
+            .collect();
+        // The same motion seen in a frame tilted by (0.02, -0.01) rad about x and y.
+        let (ax, ay) = (0.02, -0.01);
+        let tilted = sp.left_transformed(&Isometry3::rotation(Vector3::new(ax, ay, 0.0)));
+        let [tx, ty] = estimate_gravity_tilt(&tilted, &samples).unwrap();
+        assert!(
+            (tx - ax).abs() < 2e-4 && (ty - ay).abs() < 2e-4,
+            "{tx} {ty}"
+        );
+        // In the untilted frame the moving averages give back the biases.
+        let b = estimate_biases(&sp, &samples, BIAS_WINDOW_S);
+        for (bg, ba) in [&b[0], &b[4000], &b[7999]] {
+            assert!((bg - bias_g).norm() < 1e-9);
+            assert!((ba - bias_a).norm() < 1e-9);
+        }
+    }
 
     #[test]
     fn keeps_raw_lines_and_names_bad_rows() {

@@ -559,6 +559,57 @@ mod tests {
     use super::*;
 
     #[test]
+    fn output_does_not_depend_on_the_thread_count() {
+        let path: Vec<Vector3<f64>> = (0..50)
+            .map(|k| Vector3::new(0.05 * k as f64, 0.0, 1.2))
+            .collect();
+        let scene = Scene::build(&path, 4);
+        let cam = CameraModel::euroc_cam0().scaled_to_level(3);
+        let r = Renderer::new(&scene, &cam).unwrap();
+        // Camera looking along world x (optical axis z_cam = x_world, image y down = -z_world).
+        let rot = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::new(
+            0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0,
+        ));
+        let pose = |x: f64| {
+            Isometry3::from_parts(
+                nalgebra::Translation3::new(x, 0.0, 1.2),
+                nalgebra::UnitQuaternion::from_rotation_matrix(&rot),
+            )
+        };
+        let poses = FramePoses {
+            slots: [pose(0.0), pose(0.01), pose(0.02), pose(0.03)],
+            centre: pose(0.015),
+        };
+        let exp = Exposure::ideal();
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| r.render(7, &poses, &exp, true, 9))
+        };
+        let (a, b) = (run(1), run(3));
+        assert_eq!(a.image, b.image);
+        assert_eq!(
+            a.depth_m
+                .data()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>(),
+            b.depth_m
+                .data()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
+        );
+        assert_eq!(a.missed_rays, 0);
+        // Looking at the +x wall from x = 0.015: depth is positive and below the room size.
+        let room_x = scene.room_max_m[0];
+        let d = a.depth_m.get(47, 30) as f64;
+        assert!(d > 0.1 && d <= room_x - 0.015 + 1e-3, "{d}");
+    }
+
+    #[test]
     fn clipping_keeps_points_in_front() {
         let c = [
             Vector3::new(-1.0, -1.0, -1.0),

@@ -179,6 +179,18 @@ impl PoseSpline {
         t >= self.start() && t <= self.end()
     }
 
+    /// The same motion expressed in another world frame: `t_new_world * t_world_body(t)`.
+    pub fn left_transformed(&self, t_new_world: &Isometry3<f64>) -> PoseSpline {
+        let r = *t_new_world.rotation.to_rotation_matrix().matrix();
+        let mut out = self.clone();
+        for (rk, pk) in out.rot.iter_mut().zip(out.pos.iter_mut()) {
+            *rk = r * *rk;
+            *pk = t_new_world.transform_point(&(*pk).into()).coords;
+        }
+        out.update_deltas();
+        out
+    }
+
     /// Pose `t_world_body` at `t` (clamped to the span).
     pub fn pose(&self, t: TimeNs) -> Isometry3<f64> {
         let (i, s) = self.locate(t);
@@ -293,6 +305,22 @@ mod tests {
                 "alpha at {k}: {dw_num:?} vs {:?}",
                 st.alpha_body_rad_s2
             );
+        }
+    }
+
+    #[test]
+    fn left_transform_moves_the_whole_trajectory() {
+        let sp = random_spline(3);
+        let t_nw = Isometry3::new(Vector3::new(1.0, -2.0, 0.5), Vector3::new(0.02, -0.03, 1.0));
+        let moved = sp.left_transformed(&t_nw);
+        for k in 0..10 {
+            let t = sp.start().add_ns(k * 55_000_000);
+            let (a, b) = (t_nw * sp.pose(t), moved.pose(t));
+            assert!((a.translation.vector - b.translation.vector).norm() < 1e-12);
+            assert!(a.rotation.angle_to(&b.rotation) < 1e-12);
+            // Body-frame rates do not change.
+            let (sa, sb) = (sp.state(t), moved.state(t));
+            assert!((sa.omega_body_rad_s - sb.omega_body_rad_s).norm() < 1e-9);
         }
     }
 

@@ -347,12 +347,20 @@ impl Painter {
                     let v = self.rng.range(0.15, 0.7);
                     self.rect(x - 0.5 * w, y - 0.5 * h, x + 0.5 * w, y + 0.5 * h, v);
                 }
-                for _ in 0..(area * 0.25).ceil() as usize {
-                    // tape lines
-                    let (a, b) = (self.random_point(0.2), self.random_point(0.2));
+                for _ in 0..(area * 0.12).ceil() as usize {
+                    // tape marks, 0.4-2 m long
+                    let a = self.random_point(0.2);
+                    let (len, ang) = (self.rng.range(0.4, 2.0), self.rng.range(0.0, 6.3));
+                    let b = (a.0 + len * ang.cos(), a.1 + len * ang.sin());
                     let v = if self.rng.uniform() < 0.5 { 0.9 } else { 0.08 };
                     let lw = self.rng.range(0.03, 0.06);
                     self.line(a, b, lw, v);
+                }
+                for _ in 0..(area * 0.12).ceil() as usize {
+                    // sheets of paper, signs and floor stickers
+                    let (w, h) = (self.rng.range(0.15, 0.5), self.rng.range(0.15, 0.4));
+                    let (x, y) = self.random_point(0.5);
+                    self.poster(x, y, w, h);
                 }
                 for _ in 0..(area * 0.6).ceil() as usize {
                     let (x, y) = self.random_point(0.1);
@@ -369,7 +377,7 @@ impl Painter {
             SurfaceKind::Wall => {
                 let base = self.rng.range(0.5, 0.72);
                 self.fill_base(base);
-                let n_posters = (area * 0.09).ceil() as usize;
+                let n_posters = (area * 0.16).ceil() as usize;
                 for _ in 0..n_posters {
                     let (w, h) = (self.rng.range(0.4, 1.3), self.rng.range(0.4, 1.1));
                     let (x, y) = self.random_point(0.8);
@@ -390,10 +398,17 @@ impl Painter {
                     let (s, amp) = (self.rng.range(0.01, 0.06), self.rng.range(-0.3, 0.2));
                     self.blob(x, y, s, amp);
                 }
-                for _ in 0..(area * 0.05).ceil() as usize {
+                for _ in 0..(area * 0.1).ceil() as usize {
                     let (x, y) = self.random_point(0.5);
                     let g = self.rng.range(0.02, 0.06);
                     self.text(x - 0.3, y, 0.6, 3, g, 0.1);
+                }
+                for _ in 0..(area * 0.05).ceil() as usize {
+                    // shelves / cable ducts: long thin horizontal bands
+                    let (x, y) = self.random_point(0.5);
+                    let len = self.rng.range(0.8, 2.5);
+                    let (v, th) = (self.rng.range(0.1, 0.9), self.rng.range(0.02, 0.06));
+                    self.rect(x - 0.5 * len, y, x + 0.5 * len, y + th, v);
                 }
             }
             SurfaceKind::Ceiling => {

@@ -11,7 +11,9 @@ use super::exposure::{AutoExposure, Exposure};
 use super::fit::{FitError, FitReport, fit_pose_spline};
 use super::flights::{UnknownFlight, builtin_flight};
 use super::imu_synth::synthesize_imu;
-use super::real_imu::{BIAS_WINDOW_S, RealImuError, estimate_biases, read_real_imu};
+use super::real_imu::{
+    BIAS_WINDOW_S, RealImuError, estimate_biases, estimate_gravity_tilt, read_real_imu,
+};
 use super::render::{FramePoses, RenderError, Renderer, SAMPLES_PER_PIXEL};
 use super::scene::Scene;
 use super::spline::PoseSpline;
@@ -183,6 +185,8 @@ pub struct SimReport {
     pub path_length_m: f64,
     pub camera_rate_hz: f64,
     pub fit: FitReport,
+    /// Rotation (about world x, y; rad) applied to level a real-IMU sequence's world frame.
+    pub level_tilt_rad: [f64; 2],
     pub quads: usize,
     pub boxes: usize,
     pub panels: usize,
@@ -217,7 +221,7 @@ pub fn generate(cfg: &SimConfig) -> Result<SimReport, SimError> {
         TrajectorySource::Builtin(name) => builtin_flight(name, &cfg.camera.t_body_cam)?,
         TrajectorySource::File(p) => Trajectory::read(p)?.0,
     };
-    let (spline, fit) = fit_pose_spline(&poses.poses, knot_ns)?;
+    let (mut spline, fit) = fit_pose_spline(&poses.poses, knot_ns)?;
 
     // --- IMU timeline
     let real_rows = match &cfg.imu {
@@ -329,6 +333,42 @@ pub fn generate(cfg: &SimConfig) -> Result<SimReport, SimError> {
             "knot spacing {} s is coarse: motion faster than ~{:.0} Hz is smoothed",
             cfg.knot_spacing_s,
             0.5 / cfg.knot_spacing_s
+        ));
+    }
+
+    // --- a real IMU measures the true gravity: level the world frame to it (z up exactly).
+    let mut level_tilt_rad = [0.0, 0.0];
+    if let Some(rows) = &real_rows {
+        let samples: Vec<_> = rows
+            .iter()
+            .filter(|r| r.sample.t >= start && r.sample.t <= end)
+            .map(|r| r.sample)
+            .collect();
+        for _ in 0..2 {
+            match estimate_gravity_tilt(&spline, &samples) {
+                Some([tx, ty]) => {
+                    let level = Isometry3::rotation(Vector3::new(-tx, -ty, 0.0));
+                    spline = spline.left_transformed(&level);
+                    level_tilt_rad[0] += tx;
+                    level_tilt_rad[1] += ty;
+                }
+                None => {
+                    notes.push(
+                        "gravity tilt of the trajectory frame not observable (heading barely \
+                         varies): frame left as given"
+                            .into(),
+                    );
+                    break;
+                }
+            }
+        }
+        let deg = (level_tilt_rad[0].hypot(level_tilt_rad[1])).to_degrees();
+        notes.push(format!(
+            "world frame levelled to the real IMU's gravity: the input frame's z axis was {deg:.3}° \
+             off vertical (about x {:.4}°, y {:.4}°); ground truth and scene.json are in the \
+             levelled frame",
+            level_tilt_rad[0].to_degrees(),
+            level_tilt_rad[1].to_degrees()
         ));
     }
 
@@ -500,6 +540,7 @@ pub fn generate(cfg: &SimConfig) -> Result<SimReport, SimError> {
         path_length_m,
         camera_rate_hz: camera_sensor.rate_hz,
         fit,
+        level_tilt_rad,
         quads: scene.quads.len(),
         boxes: scene.boxes.len(),
         panels: scene.panels.len(),
