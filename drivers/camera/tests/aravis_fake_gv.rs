@@ -270,7 +270,13 @@ fn fake_gige_camera_over_udp_streams_survives_a_kill_and_reconnects() {
             .expect("frames after reconnect");
     }
     let stats = cam.stats();
-    assert_eq!((stats.lost, stats.reconnects), (1, 1), "{stats:?}");
+    // One kill, so at least one loss, and every loss was followed by a reconnect. On a loaded
+    // machine a >1 s scheduling stall during the outage can be declared a second loss of the
+    // same outage (seen once with five developers building on 2 cores), hence `>=`.
+    assert!(
+        stats.lost >= 1 && stats.reconnects == stats.lost,
+        "{stats:?}"
+    );
     cam.stop().unwrap();
 }
 
