@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use vidslam::dataset::shared_data_or_skip;
 
 fn vidslam(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_vidslam"))
@@ -16,19 +17,7 @@ fn vidslam(args: &[&str]) -> (bool, String, String) {
 }
 
 fn euroc_clip() -> Option<PathBuf> {
-    let root = std::env::var_os("VIDSLAM_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let clip = root.join("euroc/V1_01_easy_micro");
-    if clip.join("mav0/cam0/data.csv").is_file() {
-        Some(clip)
-    } else {
-        eprintln!(
-            "SKIP: EuRoC clip not found at {} (set VIDSLAM_DATA)",
-            clip.display()
-        );
-        None
-    }
+    shared_data_or_skip("euroc/V1_01_easy_micro")
 }
 
 fn rows(csv: &Path) -> Vec<String> {

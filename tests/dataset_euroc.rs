@@ -4,23 +4,14 @@ use nalgebra::{Isometry3, Vector3};
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{
     AslDataset, AslWriter, CameraSensor, Event, GroundTruth, GroundTruthState, ImuSensor,
-    shared_data_dir,
+    shared_data_or_skip,
 };
 use vidslam::image::Image;
 use vidslam::imu::{ImuNoise, ImuSample};
 use vidslam::time::TimeNs;
 
 fn v101() -> Option<std::path::PathBuf> {
-    let p = shared_data_dir().join("euroc/V1_01_easy_micro");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!(
-            "SKIP: shared EuRoC clip not found at {} (set VIDSLAM_DATA)",
-            p.display()
-        );
-        None
-    }
+    shared_data_or_skip("euroc/V1_01_easy_micro")
 }
 
 #[test]

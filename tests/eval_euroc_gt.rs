@@ -8,21 +8,11 @@ use eval_common::{num, perturb, read_json, run_vidslam, scratch_dir};
 use nalgebra::{UnitQuaternion, Vector3};
 use std::ffi::OsStr;
 use std::path::PathBuf;
-use vidslam::dataset::{StampedPose, Trajectory, TrajectoryFormat, shared_data_dir};
+use vidslam::dataset::{StampedPose, Trajectory, TrajectoryFormat, shared_data_or_skip};
 use vidslam::eval::Sim3;
 
 fn v101_groundtruth() -> Option<PathBuf> {
-    let p =
-        shared_data_dir().join("euroc/V1_01_easy_micro/mav0/state_groundtruth_estimate0/data.csv");
-    if p.is_file() {
-        Some(p)
-    } else {
-        eprintln!(
-            "SKIP: EuRoC ground truth not found at {} (set VIDSLAM_DATA)",
-            p.display()
-        );
-        None
-    }
+    shared_data_or_skip("euroc/V1_01_easy_micro/mav0/state_groundtruth_estimate0/data.csv")
 }
 
 #[test]

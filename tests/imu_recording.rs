@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use vidslam::cli::imu::decode_file;
 use vidslam::dataset::gx4_recording::{encode_gx4_recording, gx4_packets};
-use vidslam::dataset::read_imu_csv;
+use vidslam::dataset::{read_imu_csv, shared_data_or_skip};
 use vidslam_mip::Decoder;
 use vidslam_mip::imu::{INTERNAL_TICK_HZ, ImuData};
 use vidslam_timesync::TickUnwrapper;
@@ -15,18 +15,7 @@ fn fixture() -> PathBuf {
 }
 
 fn shared_data() -> Option<PathBuf> {
-    let dir = std::env::var_os("VIDSLAM_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "skipped: shared data not found at {} (set VIDSLAM_DATA)",
-            dir.display()
-        );
-        None
-    }
+    shared_data_or_skip("")
 }
 
 fn decode_imu(bytes: &[u8]) -> Vec<ImuData> {

@@ -2,21 +2,12 @@
 //! rendered along the real ground-truth path. Skips with a message when the shared data is absent.
 
 use vidslam::camera::CameraModel;
-use vidslam::dataset::{AslDataset, shared_data_dir};
+use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::time::TimeNs;
 
 fn v101() -> Option<std::path::PathBuf> {
-    let p = shared_data_dir().join("euroc/V1_01_easy_micro/mav0");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!(
-            "SKIP: shared EuRoC clip not found at {} (set VIDSLAM_DATA)",
-            p.display()
-        );
-        None
-    }
+    shared_data_or_skip("euroc/V1_01_easy_micro/mav0")
 }
 
 fn data_lines(text: &str) -> Vec<&str> {

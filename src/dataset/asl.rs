@@ -206,6 +206,17 @@ pub fn read_imu_csv(path: &Path) -> Result<Vec<ImuSample>, DatasetError> {
     ImuIter::open(path)?.collect()
 }
 
+/// Like [`read_imu_csv`], keeping each row's exact text (without its line feed) for byte-identical
+/// pass-through of a real recording.
+pub fn read_imu_csv_with_lines(path: &Path) -> Result<Vec<(ImuSample, String)>, DatasetError> {
+    let mut it = ImuIter::open(path)?;
+    let mut out = Vec::new();
+    while let Some(s) = it.next() {
+        out.push((s?, it.rows.raw_line().to_string()));
+    }
+    Ok(out)
+}
+
 /// Merged, time-ordered stream of IMU samples and frames.
 pub struct EventIter {
     imu: ImuIter,

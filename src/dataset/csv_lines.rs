@@ -3,14 +3,16 @@
 use super::DatasetError;
 use crate::time::TimeNs;
 use std::fs::File;
-use std::io::{BufRead, BufReader, Lines};
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 /// Iterates the data rows (comments and blank lines skipped) of a CSV file as
 /// `(line_number, fields)`, checking that the first column (ns) strictly increases.
 pub(crate) struct CsvRows {
     path: PathBuf,
-    lines: Lines<BufReader<File>>,
+    reader: BufReader<File>,
+    /// The last line read, exactly as in the file without its `\n` (a `\r` is kept).
+    raw: String,
     lineno: usize,
     last_t: Option<TimeNs>,
 }
@@ -23,7 +25,8 @@ impl CsvRows {
         })?;
         Ok(CsvRows {
             path: path.into(),
-            lines: BufReader::new(f).lines(),
+            reader: BufReader::new(f),
+            raw: String::new(),
             lineno: 0,
             last_t: None,
         })
@@ -31,6 +34,11 @@ impl CsvRows {
 
     pub(crate) fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The row last returned, byte for byte as in the file (without its line feed).
+    pub(crate) fn raw_line(&self) -> &str {
+        &self.raw
     }
 
     /// Line number (1-based) of the row last returned.
@@ -49,22 +57,28 @@ impl CsvRows {
     /// Next row: its timestamp and the remaining fields (trimmed).
     pub(crate) fn next_row(&mut self) -> Option<Result<(TimeNs, Vec<String>), DatasetError>> {
         loop {
-            let line = match self.lines.next()? {
-                Ok(l) => l,
+            self.raw.clear();
+            match self.reader.read_line(&mut self.raw) {
+                Ok(0) => return None,
+                Ok(_) => {
+                    if self.raw.ends_with('\n') {
+                        self.raw.pop();
+                    }
+                }
                 Err(source) => {
                     return Some(Err(DatasetError::Io {
                         path: self.path.clone(),
                         source,
                     }));
                 }
-            };
+            }
             self.lineno += 1;
-            let s = line.trim();
+            let s = self.raw.trim();
             if s.is_empty() || s.starts_with('#') {
                 continue;
             }
-            let mut fields = s.split(',').map(|f| f.trim().to_string());
-            let t_str = fields.next().unwrap_or_default();
+            let mut fields: Vec<String> = s.split(',').map(|f| f.trim().to_string()).collect();
+            let t_str = fields.remove(0);
             let t = match t_str.parse::<i64>() {
                 Ok(v) => TimeNs(v),
                 Err(_) => {
@@ -82,7 +96,7 @@ impl CsvRows {
                 ))));
             }
             self.last_t = Some(t);
-            return Some(Ok((t, fields.collect())));
+            return Some(Ok((t, fields)));
         }
     }
 

@@ -11,7 +11,7 @@ mod writer;
 
 pub use asl::{
     AslDataset, DEPTH_PNG_UNITS_PER_M, Event, EventIter, FrameIter, FrameRecord, ImuIter,
-    read_imu_csv,
+    read_imu_csv, read_imu_csv_with_lines,
 };
 pub use groundtruth::{GroundTruth, GroundTruthState, read_groundtruth};
 pub use sensor_yaml::{
@@ -44,6 +44,21 @@ pub enum DatasetError {
     Yaml(#[from] SensorYamlError),
     #[error(transparent)]
     Image(crate::image::PngError),
+}
+
+/// `relative` inside the shared test data, if it exists; otherwise prints a `SKIP:` line naming
+/// where it was looked for and returns `None` (tests then return early).
+pub fn shared_data_or_skip(relative: &str) -> Option<PathBuf> {
+    let p = shared_data_dir().join(relative);
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!(
+            "SKIP: shared data not found at {} (set VIDSLAM_DATA)",
+            p.display()
+        );
+        None
+    }
 }
 
 /// Location of the shared test data: `$VIDSLAM_DATA`, else `../shared/data` next to the crate.

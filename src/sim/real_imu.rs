@@ -12,8 +12,8 @@
 
 use super::imu_synth::ideal_imu;
 use super::spline::PoseSpline;
+use crate::dataset::{DatasetError, read_imu_csv_with_lines};
 use crate::imu::ImuSample;
-use crate::time::TimeNs;
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 
@@ -22,18 +22,8 @@ pub const BIAS_WINDOW_S: f64 = 10.0;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RealImuError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{path}:{line}: {msg}")]
-    Parse {
-        path: PathBuf,
-        line: usize,
-        msg: String,
-    },
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
     #[error("{path}: no IMU rows")]
     Empty { path: PathBuf },
 }
@@ -49,67 +39,10 @@ pub struct RawImuRow {
 /// raw text. Comment (`#`) and blank lines are skipped; any malformed row or non-increasing
 /// timestamp is an error naming the file and line.
 pub fn read_real_imu(path: &Path) -> Result<Vec<RawImuRow>, RealImuError> {
-    let bytes = std::fs::read(path).map_err(|source| RealImuError::Io {
-        path: path.into(),
-        source,
-    })?;
-    let text = String::from_utf8(bytes).map_err(|e| RealImuError::Parse {
-        path: path.into(),
-        line: 0,
-        msg: format!("not UTF-8 text: {e}"),
-    })?;
-    let mut rows: Vec<RawImuRow> = vec![];
-    let body = text.strip_suffix('\n').unwrap_or(&text);
-    for (idx, raw) in body.split('\n').enumerate() {
-        let trimmed = raw.trim();
-        if trimmed.is_empty() || trimmed.starts_with('#') {
-            continue;
-        }
-        let err = |msg: String| RealImuError::Parse {
-            path: path.into(),
-            line: idx + 1,
-            msg,
-        };
-        let f: Vec<&str> = trimmed.split(',').map(str::trim).collect();
-        if f.len() < 7 {
-            return Err(err(format!("expected 7 columns, found {}", f.len())));
-        }
-        let t = f[0].parse::<i64>().map_err(|_| {
-            err(format!(
-                "column 1: '{}' is not an integer timestamp in ns",
-                f[0]
-            ))
-        })?;
-        let mut v = [0.0; 6];
-        for (k, x) in v.iter_mut().enumerate() {
-            *x = match f[k + 1].parse::<f64>() {
-                Ok(x) if x.is_finite() => x,
-                _ => {
-                    return Err(err(format!(
-                        "column {}: '{}' is not a finite number",
-                        k + 2,
-                        f[k + 1]
-                    )));
-                }
-            };
-        }
-        if let Some(prev) = rows.last()
-            && t <= prev.sample.t.0
-        {
-            return Err(err(format!(
-                "timestamp {t} ns is not after the previous row's {} ns",
-                prev.sample.t.0
-            )));
-        }
-        rows.push(RawImuRow {
-            sample: ImuSample {
-                t: TimeNs(t),
-                gyro_rad_s: Vector3::new(v[0], v[1], v[2]),
-                accel_m_s2: Vector3::new(v[3], v[4], v[5]),
-            },
-            line: raw.to_string(),
-        });
-    }
+    let rows: Vec<RawImuRow> = read_imu_csv_with_lines(path)?
+        .into_iter()
+        .map(|(sample, line)| RawImuRow { sample, line })
+        .collect();
     if rows.is_empty() {
         return Err(RealImuError::Empty { path: path.into() });
     }
