@@ -1,8 +1,8 @@
 //! vidslam: tightly-coupled monocular visual-inertial direct SLAM (Concha et al., ICRA 2016).
 //!
-//! Layers, each importing only from the ones above it in this list:
-//! `time`, `geometry` → `camera`, `image`, `imu` → `dataset` → `eval`, `sim` → `tracking`,
-//! `mapping` → `runtime`, `output` → `cli`.
+//! Layers, each importing only from the ones before it in this list:
+//! `time`, `geometry` → `image` → `camera`, `imu` → `dataset` → `eval`, `sim` → `tracking`,
+//! `mapping` → `runtime`, `output` → `cli` (the driver crates under `drivers/` sit below all of them).
 //! Frame and naming conventions are documented once in [`geometry`].
 
 pub mod camera;
