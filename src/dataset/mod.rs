@@ -18,7 +18,7 @@ pub use sensor_yaml::{
     CameraSensor, ImuSensor, SensorYamlError, isometry_from_matrix, read_camera_yaml,
     read_imu_yaml, write_camera_yaml, write_imu_yaml,
 };
-pub use trajectory::{StampedPose, Trajectory, TrajectoryError, TrajectoryFormat};
+pub use trajectory::{StampedPose, Trajectory, TrajectoryFormat};
 pub use writer::AslWriter;
 
 use std::path::PathBuf;

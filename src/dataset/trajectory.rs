@@ -4,11 +4,12 @@
 //! Poses are `t_world_body` (see [`crate::geometry`] for conventions). Reading detects the format
 //! from the first data line (a comma means EuRoC CSV). Every parse error names the file and line.
 
+use super::DatasetError;
 use crate::time::TimeNs;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::fmt::Write as _;
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// One timed pose.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,24 +25,6 @@ pub enum TrajectoryFormat {
     Tum,
     /// EuRoC `state_groundtruth_estimate0/data.csv`: `timestamp_ns,px,py,pz,qw,qx,qy,qz,...`.
     EurocCsv,
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum TrajectoryError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{path}:{line}: {msg}")]
-    Parse {
-        path: PathBuf,
-        line: usize,
-        msg: String,
-    },
-    #[error("{path}: no poses found")]
-    Empty { path: PathBuf },
 }
 
 /// A time-ordered sequence of poses.
@@ -65,8 +48,8 @@ impl Trajectory {
 
     /// Reads a TUM or EuRoC CSV file (detected), returning the format found too.
     /// Timestamps must be strictly increasing.
-    pub fn read(path: &Path) -> Result<(Trajectory, TrajectoryFormat), TrajectoryError> {
-        let io = |source| TrajectoryError::Io {
+    pub fn read(path: &Path) -> Result<(Trajectory, TrajectoryFormat), DatasetError> {
+        let io = |source| DatasetError::Io {
             path: path.to_path_buf(),
             source,
         };
@@ -85,7 +68,7 @@ impl Trajectory {
             } else {
                 TrajectoryFormat::Tum
             });
-            let err = |msg: String| TrajectoryError::Parse {
+            let err = |msg: String| DatasetError::Parse {
                 path: path.to_path_buf(),
                 line: lineno,
                 msg,
@@ -104,15 +87,16 @@ impl Trajectory {
         }
         match format {
             Some(f) if !poses.is_empty() => Ok((Trajectory { poses }, f)),
-            _ => Err(TrajectoryError::Empty {
+            _ => Err(DatasetError::Layout {
                 path: path.to_path_buf(),
+                msg: "no poses found".into(),
             }),
         }
     }
 
     /// Writes the trajectory in `format`.
-    pub fn write(&self, path: &Path, format: TrajectoryFormat) -> Result<(), TrajectoryError> {
-        let io = |source| TrajectoryError::Io {
+    pub fn write(&self, path: &Path, format: TrajectoryFormat) -> Result<(), DatasetError> {
+        let io = |source| DatasetError::Io {
             path: path.to_path_buf(),
             source,
         };

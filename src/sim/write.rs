@@ -19,7 +19,7 @@ use super::scene::Scene;
 use super::spline::PoseSpline;
 use crate::dataset::{
     AslWriter, CameraSensor, DEPTH_PNG_UNITS_PER_M, DatasetError, GroundTruth, GroundTruthState,
-    ImuSensor, Trajectory, TrajectoryError, read_imu_yaml,
+    ImuSensor, Trajectory, read_imu_yaml,
 };
 use crate::image::Image;
 use crate::imu::ImuNoise;
@@ -146,8 +146,6 @@ pub fn euroc_cam0_t_body_cam() -> Isometry3<f64> {
 pub enum SimError {
     #[error("sim: {0}")]
     Config(String),
-    #[error(transparent)]
-    Trajectory(#[from] TrajectoryError),
     #[error(transparent)]
     Flight(#[from] UnknownFlight),
     #[error(transparent)]
