@@ -12,6 +12,7 @@ pub mod eval;
 pub mod geometry;
 pub mod image;
 pub mod imu;
+pub mod mapping;
 pub mod output;
 pub mod sim;
 pub mod time;

@@ -56,6 +56,7 @@ pub mod integration;
 
 pub use integration::{ImuBias, NavState, Preintegration, propagate};
 pub mod residual;
+pub mod static_init;
 
 pub use residual::{
     FrameState, Matrix15, Vector15, imu_jacobian_j, imu_residual, imu_residual_covariance,

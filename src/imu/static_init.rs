@@ -1,0 +1,1 @@
+//! Static-start detection and initial attitude / gyro bias from a resting IMU.

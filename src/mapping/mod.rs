@@ -1,0 +1,3 @@
+//! Mapping (paper section IV): the semidense inverse-depth mapper that feeds tracking.
+
+pub mod semidense;
