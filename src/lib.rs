@@ -14,6 +14,7 @@ pub mod image;
 pub mod imu;
 pub mod mapping;
 pub mod output;
+pub mod runtime;
 pub mod sim;
 pub mod time;
 pub mod tracking;

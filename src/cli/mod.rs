@@ -8,6 +8,7 @@ pub mod imu;
 use clap::{Parser, Subcommand};
 
 pub mod mavlink;
+pub mod replay;
 pub mod sim;
 
 /// Visual-inertial direct SLAM for drones: replay, evaluation, simulation and drivers.
@@ -32,6 +33,8 @@ pub enum Command {
     Mavlink(mavlink::MavlinkArgs),
     /// Camera drivers: list devices, show one, record frames (`camera --help`).
     Camera(camera::CameraArgs),
+    /// Run the odometry over a recorded dataset; write the trajectory and an accuracy report.
+    Replay(replay::ReplayArgs),
 }
 
 /// Runs the parsed command line.
@@ -43,5 +46,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Imu(args) => imu::run(args),
         Command::Mavlink(a) => mavlink::run(a),
         Command::Camera(args) => camera::run(args),
+        Command::Replay(a) => replay::run(a),
     }
 }

@@ -15,8 +15,10 @@
 //! Paper notation (Concha et al. 2016): `R_j^w`, `t_j^w` are `r_world_body`, `p_world_body` of
 //! frame j; `T_w^j` (eq. 15) is the inverse, `t_cam_world`.
 
+pub mod se3;
 pub mod so3;
 
+pub use se3::{adjoint, boxplus_se3};
 pub use so3::{exp_so3, hat, log_so3, right_jacobian, right_jacobian_inv, vee};
 
 /// Standard gravity magnitude used by the simulator and the estimator, m/s^2.

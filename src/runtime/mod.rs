@@ -1,0 +1,9 @@
+//! Running the pipeline: offline replay of recorded datasets, its report, and the configuration.
+
+pub mod config;
+pub mod replay;
+pub mod report;
+
+pub use config::Config;
+pub use replay::{DepthSource, ReplayOptions, ReplayOutput, replay};
+pub use report::{ReplayReport, trajectory};

@@ -1,0 +1,231 @@
+//! `report.json` of a replay: frame counts, tracking time percentiles and the `vidslam eval`
+//! figures against ground truth, as one flat JSON object with stable keys.
+
+use super::replay::ReplayOutput;
+use crate::dataset::{StampedPose, Trajectory};
+use crate::eval::{EvalOptions, EvalReport, evaluate};
+use crate::tracking::pose_of;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// The replay's own figures (the evaluation's are merged in by [`ReplayReport::to_json`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct ReplayReport {
+    pub frames_in: usize,
+    pub frames_tracked: usize,
+    pub frames_flagged: usize,
+    /// Flag counts by reason.
+    pub flags: BTreeMap<String, usize>,
+    pub keyframes: usize,
+    pub tracking_ms_p50: f64,
+    pub tracking_ms_p99: f64,
+    pub tracking_ms_max: f64,
+    pub tracking_ms_mean: f64,
+    /// Mean accepted Gauss-Newton iterations per frame, summed over levels.
+    pub iterations_mean: f64,
+    /// Frames whose pose has a non-finite number (must be 0).
+    pub non_finite_poses: usize,
+    /// Span of the replayed data, s.
+    pub duration_s: f64,
+    pub vision: bool,
+    pub depth: String,
+    /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
+    #[serde(skip)]
+    pub eval: Option<EvalReport>,
+}
+
+impl ReplayReport {
+    pub fn new(out: &ReplayOutput, vision: bool, depth: &str) -> Self {
+        let tracked: Vec<_> = out.frames.iter().skip(1).collect();
+        let mut ms: Vec<f64> = tracked.iter().map(|r| r.time_s * 1e3).collect();
+        ms.sort_by(f64::total_cmp);
+        let pct = |p: f64| -> f64 {
+            if ms.is_empty() {
+                return 0.0;
+            }
+            let i = ((p / 100.0) * (ms.len() - 1) as f64).round() as usize;
+            ms[i.min(ms.len() - 1)]
+        };
+        let mut flags = BTreeMap::new();
+        for r in &out.frames {
+            if let Some(f) = r.flag {
+                *flags.entry(f.as_str().to_string()).or_insert(0) += 1;
+            }
+        }
+        let flagged = out.frames.iter().filter(|r| r.flag.is_some()).count();
+        let non_finite = out
+            .frames
+            .iter()
+            .filter(|r| {
+                let p = pose_of(&r.state);
+                !(p.translation.vector.iter().all(|v| v.is_finite())
+                    && p.rotation.coords.iter().all(|v| v.is_finite()))
+            })
+            .count();
+        let duration_s = match (out.frames.first(), out.frames.last()) {
+            (Some(a), Some(b)) => b.t.secs_since(a.t),
+            _ => 0.0,
+        };
+        ReplayReport {
+            frames_in: out.frames_in,
+            frames_tracked: out.frames.len() - flagged,
+            frames_flagged: flagged,
+            flags,
+            keyframes: out.keyframes,
+            tracking_ms_p50: pct(50.0),
+            tracking_ms_p99: pct(99.0),
+            tracking_ms_max: ms.last().copied().unwrap_or(0.0),
+            tracking_ms_mean: if ms.is_empty() {
+                0.0
+            } else {
+                ms.iter().sum::<f64>() / ms.len() as f64
+            },
+            iterations_mean: if tracked.is_empty() {
+                0.0
+            } else {
+                tracked
+                    .iter()
+                    .map(|r| r.iterations.iter().map(|&i| i as f64).sum::<f64>())
+                    .sum::<f64>()
+                    / tracked.len() as f64
+            },
+            non_finite_poses: non_finite,
+            duration_s,
+            vision,
+            depth: depth.to_string(),
+            eval: None,
+        }
+    }
+
+    /// Evaluates `est` against `gt` with SE3 alignment (metric: no scale fix).
+    pub fn evaluate_against(&mut self, gt: &Trajectory, est: &Trajectory) {
+        self.eval = evaluate(gt, est, &EvalOptions::default()).ok();
+    }
+
+    /// One flat JSON object: these fields plus every key of the evaluation (`ate_rmse_m`,
+    /// `scale_error_pct`, …).
+    pub fn to_json(&self) -> String {
+        let mut v = serde_json::to_value(self).unwrap_or_default();
+        if let (Some(obj), Some(e)) = (v.as_object_mut(), &self.eval)
+            && let Ok(serde_json::Value::Object(ev)) = serde_json::to_value(e)
+        {
+            for (k, val) in ev {
+                let key = match k.as_str() {
+                    "duration_s" => "eval_duration_s".to_string(),
+                    _ => k,
+                };
+                obj.insert(key, val);
+            }
+        }
+        serde_json::to_string_pretty(&v).unwrap_or_default()
+    }
+
+    /// A human summary table.
+    pub fn to_table(&self) -> String {
+        let mut s = String::new();
+        let mut row = |k: &str, v: String| s.push_str(&format!("{k:<24} {v}\n"));
+        row("frames in", self.frames_in.to_string());
+        row("frames tracked", self.frames_tracked.to_string());
+        row(
+            "frames flagged",
+            format!("{} {:?}", self.frames_flagged, self.flags),
+        );
+        row("keyframes", self.keyframes.to_string());
+        row(
+            "tracking ms p50/p99/max",
+            format!(
+                "{:.2} / {:.2} / {:.2}",
+                self.tracking_ms_p50, self.tracking_ms_p99, self.tracking_ms_max
+            ),
+        );
+        row(
+            "GN iterations / frame",
+            format!("{:.1}", self.iterations_mean),
+        );
+        row("non-finite poses", self.non_finite_poses.to_string());
+        if let Some(e) = &self.eval {
+            row("ATE RMSE (SE3)", format!("{:.4} m", e.ate_rmse_m));
+            row("ATE max", format!("{:.4} m", e.ate_max_m));
+            row("rotation RMSE", format!("{:.3} deg", e.rot_rmse_deg));
+            row(
+                "scale error (Sim3)",
+                format!("{:.2} % (s = {:.4})", e.scale_error_pct, e.scale),
+            );
+            if let Some(r) = e.rpe_1m_trans_rmse_m {
+                row("RPE 1 m", format!("{r:.4} m"));
+            }
+            row(
+                "evaluated",
+                format!(
+                    "{} poses, {:.1} s, {:.1} m",
+                    e.matched_poses, e.duration_s, e.gt_path_m
+                ),
+            );
+        } else {
+            row(
+                "evaluation",
+                "not available (no ground truth overlap)".into(),
+            );
+        }
+        s
+    }
+}
+
+/// The estimated trajectory (body in the world) of a replay.
+pub fn trajectory(out: &ReplayOutput) -> Trajectory {
+    Trajectory::new(
+        out.frames
+            .iter()
+            .map(|r| StampedPose {
+                t: r.t,
+                t_world_body: pose_of(&r.state),
+            })
+            .collect(),
+    )
+}
+
+/// Per-frame diagnostics as CSV (`frames.csv`): time, flag, iterations per level, inlier ratio,
+/// overlap, residual RMS, IMU χ², keyframe, tracking time, position, velocity and biases.
+pub fn frames_csv(out: &ReplayOutput) -> String {
+    let mut s = String::from(
+        "t_ns,flag,iters_l0,iters_l1,iters_l2,iters_l3,inlier_ratio,overlap,residual_rms_gray,\
+         imu_chi2,keyframe_id,new_keyframe,tracking_ms,px_m,py_m,pz_m,vx_m_s,vy_m_s,vz_m_s,\
+         bgx_rad_s,bgy_rad_s,bgz_rad_s,bax_m_s2,bay_m_s2,baz_m_s2,log_gain,offset_gray\n",
+    );
+    for r in &out.frames {
+        let n = &r.state.nav;
+        let b = &r.state.bias;
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{:.4},{:.4},{:.3},{:.3},{},{},{:.3},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},\
+             {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3}\n",
+            r.t.0,
+            r.flag.map_or("", |f| f.as_str()),
+            r.iterations[0],
+            r.iterations[1],
+            r.iterations[2],
+            r.iterations[3],
+            r.inlier_ratio,
+            r.overlap,
+            r.residual_rms_gray,
+            r.imu_chi2,
+            r.keyframe_id.map_or(-1, |k| k as i64),
+            u8::from(r.wants_keyframe),
+            r.time_s * 1e3,
+            n.p_world_m.x,
+            n.p_world_m.y,
+            n.p_world_m.z,
+            n.v_world_m_s.x,
+            n.v_world_m_s.y,
+            n.v_world_m_s.z,
+            b.gyro_rad_s.x,
+            b.gyro_rad_s.y,
+            b.gyro_rad_s.z,
+            b.accel_m_s2.x,
+            b.accel_m_s2.y,
+            b.accel_m_s2.z,
+            r.log_gain,
+            r.offset_gray,
+        ));
+    }
+    s
+}

@@ -1,0 +1,86 @@
+//! Tracking parameters (the `[tracking]` table of the TOML config). Every field has a unit in its
+//! name or doc; defaults are what `vidslam replay` uses.
+
+use serde::{Deserialize, Serialize};
+
+/// Number of pyramid levels the tracker uses (level 0 = full resolution).
+pub const NUM_LEVELS: usize = 4;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrackerConfig {
+    /// Point selection: a level-0 pixel is a candidate if its gradient magnitude exceeds this,
+    /// gray levels per pixel.
+    pub min_gradient_gray_px: f32,
+    /// Point selection: the image is split into square cells of this size (level-0 pixels) and
+    /// the strongest candidate of each cell is kept.
+    pub select_cell_px: usize,
+    /// Points kept per pyramid level at most, fine to coarse.
+    pub max_points_per_level: [usize; NUM_LEVELS],
+    /// Cell size (pixels of that level) for thinning each level's points, fine to coarse.
+    pub level_cell_px: [usize; NUM_LEVELS],
+    /// Gauss-Newton iterations per level at most, fine to coarse.
+    pub max_iterations_per_level: [usize; NUM_LEVELS],
+    /// A level has converged when an update moves the image by less than this, pixels of that
+    /// level.
+    pub convergence_px: f64,
+    /// Huber threshold of the photometric residual, gray levels.
+    pub huber_gray: f32,
+    /// Residuals above this are outliers (weight 0), gray levels.
+    pub outlier_gray: f32,
+    /// Lower bound of the photometric noise scale (estimated per level from the residuals' MAD),
+    /// gray levels.
+    pub min_sigma_gray: f64,
+    /// Photometric information is divided by this (residuals of neighbouring pixels are not
+    /// independent; 1 = treat them as independent).
+    pub photometric_correlation: f64,
+    /// Points closer to the image border than this are not used, pixels of the level.
+    pub border_px: f64,
+    /// Prior standard deviation of the log-gain of the affine brightness model, relative to the
+    /// previous frame.
+    pub affine_gain_prior_std: f64,
+    /// Prior standard deviation of the brightness offset, gray levels.
+    pub affine_offset_prior_std_gray: f64,
+    /// A frame is flagged if fewer than this fraction of the keyframe's level-0 points are inliers.
+    pub min_inlier_ratio: f64,
+    /// A frame is flagged if the IMU residual's squared Mahalanobis norm exceeds this (15 dof).
+    pub max_imu_chi2: f64,
+    /// New keyframe when fewer than this fraction of the keyframe's points project into the frame.
+    pub keyframe_min_overlap: f64,
+    /// New keyframe when the distance from the keyframe over its median depth exceeds this.
+    pub keyframe_max_baseline_ratio: f64,
+    /// New keyframe when the rotation from the keyframe exceeds this, rad.
+    pub keyframe_max_rotation_rad: f64,
+    /// The IMU noise densities of `imu0/sensor.yaml` are multiplied by this (datasheet values
+    /// understate a real MEMS IMU on a vibrating airframe; random walks are kept).
+    pub imu_noise_scale: f64,
+    /// Use the images at all (`false` = IMU-only dead reckoning through the same solver).
+    pub use_vision: bool,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        TrackerConfig {
+            min_gradient_gray_px: 6.0,
+            select_cell_px: 4,
+            max_points_per_level: [3000, 2000, 1000, 500],
+            level_cell_px: [3, 2, 1, 1],
+            max_iterations_per_level: [6, 8, 10, 12],
+            convergence_px: 0.01,
+            huber_gray: 9.0,
+            outlier_gray: 40.0,
+            min_sigma_gray: 2.0,
+            photometric_correlation: 1.0,
+            border_px: 2.0,
+            affine_gain_prior_std: 0.3,
+            affine_offset_prior_std_gray: 30.0,
+            min_inlier_ratio: 0.25,
+            max_imu_chi2: 1000.0,
+            keyframe_min_overlap: 0.7,
+            keyframe_max_baseline_ratio: 0.12,
+            keyframe_max_rotation_rad: 0.3,
+            imu_noise_scale: 3.0,
+            use_vision: true,
+        }
+    }
+}

@@ -1,0 +1,355 @@
+//! The tracking keyframe `I_i` (section III-D): its image pyramid, its semidense points per level
+//! in the keyframe camera frame, and the inverse-compositional Jacobians of eq. 26, computed once
+//! when the keyframe is made (`T_w^i`, `p_t` and `J_F^{r_ph}` are constant during tracking).
+
+use super::config::{NUM_LEVELS, TrackerConfig};
+use crate::camera::CameraModel;
+use crate::geometry::hat;
+use crate::image::{Image, Pyramid, bilinear, bilinear_with_gradient};
+use crate::time::TimeNs;
+use nalgebra::{Isometry3, Matrix2x3, Matrix3x6, Vector2, Vector3};
+
+/// A level-0 keyframe pixel with its inverse depth: what a depth source (ground truth or the
+/// semidense mapper) hands the tracker.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthPoint {
+    /// Pixel in the (distorted) level-0 image.
+    pub u_px: f32,
+    pub v_px: f32,
+    /// 1/z in the keyframe camera frame, 1/m.
+    pub inv_depth_m_inv: f32,
+}
+
+/// One pyramid level's points, structure-of-arrays in `f32` (the per-pixel hot path).
+#[derive(Clone, Debug, Default)]
+pub struct LevelPoints {
+    /// Point in the keyframe camera frame, m.
+    pub p_kf_m: Vec<[f32; 3]>,
+    /// Keyframe intensity at the point, gray levels.
+    pub intensity: Vec<f32>,
+    /// `d I_i(π(exp(ε) p)) / dε` at `ε = 0` for the twist `ε = [ω, v]` (eq. 26: image gradient ·
+    /// projection Jacobian · point Jacobian), gray levels per unit twist.
+    pub jacobian: Vec<[f32; 6]>,
+}
+
+impl LevelPoints {
+    pub fn len(&self) -> usize {
+        self.p_kf_m.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.p_kf_m.is_empty()
+    }
+}
+
+/// A keyframe ready for tracking.
+#[derive(Clone, Debug)]
+pub struct Keyframe {
+    pub id: u32,
+    pub t: TimeNs,
+    /// Pose of the keyframe camera (`T_w^i` inverted).
+    pub t_world_cam: Isometry3<f64>,
+    pub pyramid: Pyramid,
+    /// Camera model of each level.
+    pub cameras: Vec<CameraModel>,
+    /// Points per level (index 0 = full resolution).
+    pub levels: Vec<LevelPoints>,
+    /// Median depth of the level-0 points, m.
+    pub median_depth_m: f64,
+}
+
+impl Keyframe {
+    /// Builds the per-level points from level-0 depth points: each level keeps, per cell of
+    /// `level_cell_px`, the point of strongest gradient at that level, up to the level's cap.
+    pub fn new(
+        id: u32,
+        t: TimeNs,
+        pyramid: Pyramid,
+        camera: &CameraModel,
+        t_world_cam: Isometry3<f64>,
+        points: &[DepthPoint],
+        cfg: &TrackerConfig,
+    ) -> Self {
+        let cameras: Vec<CameraModel> = (0..pyramid.num_levels())
+            .map(|l| camera.scaled_to_level(l as u32))
+            .collect();
+        // Back-project once at level 0; the same 3-D point projects to the right place at every
+        // level because the level models are exact rescalings.
+        let mut p3: Vec<Vector3<f64>> = Vec::with_capacity(points.len());
+        for p in points {
+            if !(p.inv_depth_m_inv.is_finite() && p.inv_depth_m_inv > 0.0) {
+                continue;
+            }
+            let Some(ray) = camera.unproject(&Vector2::new(p.u_px as f64, p.v_px as f64)) else {
+                continue;
+            };
+            p3.push(ray / p.inv_depth_m_inv as f64);
+        }
+        let mut depths: Vec<f64> = p3.iter().map(|p| p.z).collect();
+        let median_depth_m = median(&mut depths).unwrap_or(1.0);
+        let mut levels = Vec::with_capacity(pyramid.num_levels());
+        for (l, cam) in cameras.iter().enumerate() {
+            let li = l.min(NUM_LEVELS - 1);
+            levels.push(build_level(
+                &pyramid,
+                l,
+                cam,
+                &p3,
+                cfg.level_cell_px[li],
+                cfg.max_points_per_level[li],
+                cfg.border_px,
+            ));
+        }
+        Keyframe {
+            id,
+            t,
+            t_world_cam,
+            pyramid,
+            cameras,
+            levels,
+            median_depth_m,
+        }
+    }
+
+    /// Number of level-0 points.
+    pub fn num_points(&self) -> usize {
+        self.levels.first().map_or(0, LevelPoints::len)
+    }
+}
+
+fn build_level(
+    pyr: &Pyramid,
+    level: usize,
+    cam: &CameraModel,
+    points: &[Vector3<f64>],
+    cell_px: usize,
+    max_points: usize,
+    border_px: f64,
+) -> LevelPoints {
+    let img = pyr.level(level);
+    let (gx, gy) = pyr.gradients(level);
+    let cell = cell_px.max(1);
+    let (cw, ch) = (img.width().div_ceil(cell), img.height().div_ceil(cell));
+    // Best point per cell: (gradient², index, u, v).
+    let mut best: Vec<Option<(f32, usize, f32, f32)>> = vec![None; cw * ch];
+    for (i, p) in points.iter().enumerate() {
+        let Some(uv) = cam.project(p) else { continue };
+        if !cam.in_image(&uv, border_px.max(1.0)) {
+            continue;
+        }
+        let (u, v) = (uv.x as f32, uv.y as f32);
+        let (Some(dx), Some(dy)) = (bilinear(gx, u, v), bilinear(gy, u, v)) else {
+            continue;
+        };
+        let g2 = dx * dx + dy * dy;
+        let c = (v as usize / cell) * cw + u as usize / cell;
+        if best[c].is_none_or(|b| g2 > b.0) {
+            best[c] = Some((g2, i, u, v));
+        }
+    }
+    let mut chosen: Vec<(f32, usize, f32, f32)> = best.into_iter().flatten().collect();
+    if chosen.len() > max_points {
+        // Keep the strongest, deterministically (ties broken by index).
+        chosen.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        chosen.truncate(max_points);
+        chosen.sort_by_key(|c| c.1);
+    }
+    let mut out = LevelPoints {
+        p_kf_m: Vec::with_capacity(chosen.len()),
+        intensity: Vec::with_capacity(chosen.len()),
+        jacobian: Vec::with_capacity(chosen.len()),
+    };
+    for (_, i, u, v) in chosen {
+        let p = points[i];
+        let Some((_, jproj)) = cam.project_with_jacobian(&p) else {
+            continue;
+        };
+        let Some((val, _, _)) = bilinear_with_gradient(img, u, v) else {
+            continue;
+        };
+        let (Some(dx), Some(dy)) = (bilinear(gx, u, v), bilinear(gy, u, v)) else {
+            continue;
+        };
+        let j = intensity_jacobian(&Vector2::new(dx as f64, dy as f64), &jproj, &p);
+        out.p_kf_m.push([p.x as f32, p.y as f32, p.z as f32]);
+        out.intensity.push(val);
+        out.jacobian
+            .push([j[0], j[1], j[2], j[3], j[4], j[5]].map(|x| x as f32));
+    }
+    out
+}
+
+/// Eq. 26: `J = ∇I · ∂π/∂p · ∂(exp(ε) p)/∂ε`, with `∂(exp(ε) p)/∂ε = [−[p]×, I]` for `ε = [ω, v]`.
+pub fn intensity_jacobian(
+    grad: &Vector2<f64>,
+    jproj: &Matrix2x3<f64>,
+    p: &Vector3<f64>,
+) -> nalgebra::RowVector6<f64> {
+    let mut jp = Matrix3x6::zeros();
+    jp.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-hat(p)));
+    jp.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&nalgebra::Matrix3::identity());
+    grad.transpose() * jproj * jp
+}
+
+/// Selects level-0 tracking candidates from an image pyramid: per `cfg.select_cell_px` cell the
+/// pixel of largest gradient magnitude, if above `cfg.min_gradient_gray_px`.
+pub fn select_gradient_pixels(pyr: &Pyramid, cfg: &TrackerConfig) -> Vec<(u32, u32)> {
+    let (gx, gy) = pyr.gradients(0);
+    let (w, h) = (gx.width(), gx.height());
+    let cell = cfg.select_cell_px.max(1);
+    let border = (cfg.border_px.ceil() as usize).max(2);
+    let thr2 = cfg.min_gradient_gray_px * cfg.min_gradient_gray_px;
+    let mut out = Vec::new();
+    for cy in (border..h.saturating_sub(border)).step_by(cell) {
+        for cx in (border..w.saturating_sub(border)).step_by(cell) {
+            let mut best: Option<(f32, u32, u32)> = None;
+            for y in cy..(cy + cell).min(h - border) {
+                let (rx, ry) = (gx.row(y), gy.row(y));
+                for x in cx..(cx + cell).min(w - border) {
+                    let g2 = rx[x] * rx[x] + ry[x] * ry[x];
+                    if g2 > thr2 && best.is_none_or(|b| g2 > b.0) {
+                        best = Some((g2, x as u32, y as u32));
+                    }
+                }
+            }
+            if let Some((_, x, y)) = best {
+                out.push((x, y));
+            }
+        }
+    }
+    out
+}
+
+/// Depth points from a dense depth map (z, m; 0 = none) at the selected pixels, dropping pixels
+/// on depth discontinuities (their 3x3 neighbourhood spans more than `max_rel_spread` of the
+/// depth), where a blurred edge pixel has no single depth.
+pub fn depth_points_from_map(
+    pixels: &[(u32, u32)],
+    depth_m: &Image<f32>,
+    max_rel_spread: f32,
+) -> Vec<DepthPoint> {
+    let (w, h) = (depth_m.width(), depth_m.height());
+    let mut out = Vec::with_capacity(pixels.len());
+    for &(x, y) in pixels {
+        let (x, y) = (x as usize, y as usize);
+        if x == 0 || y == 0 || x + 1 >= w || y + 1 >= h {
+            continue;
+        }
+        let d = depth_m.get(x, y);
+        if !(d.is_finite() && d > 0.0) {
+            continue;
+        }
+        let (mut lo, mut hi) = (d, d);
+        for yy in y - 1..=y + 1 {
+            for xx in x - 1..=x + 1 {
+                let n = depth_m.get(xx, yy);
+                lo = lo.min(n);
+                hi = hi.max(n);
+            }
+        }
+        if lo <= 0.0 || (hi - lo) > max_rel_spread * d {
+            continue;
+        }
+        out.push(DepthPoint {
+            u_px: x as f32,
+            v_px: y as f32,
+            inv_depth_m_inv: 1.0 / d,
+        });
+    }
+    out
+}
+
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let m = v.len() / 2;
+    v.select_nth_unstable_by(m, f64::total_cmp);
+    Some(v[m])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::boxplus_se3;
+    use nalgebra::Vector6;
+
+    /// A smooth image (so bilinear gradients equal the analytic ones to first order).
+    fn smooth(w: usize, h: usize) -> Image<f32> {
+        Image::from_fn(w, h, |x, y| {
+            let (x, y) = (x as f32, y as f32);
+            120.0 + 60.0 * (x * 0.11).sin() * (y * 0.07).cos() + 30.0 * (0.05 * (x + 2.0 * y)).sin()
+        })
+    }
+
+    #[test]
+    fn intensity_jacobian_matches_numeric_differentiation() {
+        let cam = CameraModel::euroc_cam0();
+        let img = smooth(cam.width, cam.height);
+        let mut pyr = Pyramid::new(cam.width, cam.height, 1);
+        pyr.fill_from_f32(&img);
+        let (gx, gy) = pyr.gradients(0);
+        let p = Vector3::new(0.35, -0.2, 2.3);
+        let (uv, jproj) = cam.project_with_jacobian(&p).unwrap();
+        let (u, v) = (uv.x as f32, uv.y as f32);
+        let grad = Vector2::new(
+            bilinear(gx, u, v).unwrap() as f64,
+            bilinear(gy, u, v).unwrap() as f64,
+        );
+        let j = intensity_jacobian(&grad, &jproj, &p);
+        let f = |eps: &Vector6<f64>| {
+            let q = boxplus_se3(&Isometry3::identity(), eps) * nalgebra::Point3::from(p);
+            let uv = cam.project(&q.coords).unwrap();
+            bilinear(&img, uv.x as f32, uv.y as f32).unwrap() as f64
+        };
+        for k in 0..6 {
+            let h = if k < 3 { 2e-3 } else { 4e-3 };
+            let mut e = Vector6::zeros();
+            e[k] = h;
+            let num = (f(&e) - f(&-e)) / (2.0 * h);
+            // Central-difference image gradients vs the smooth function: a few percent.
+            assert!(
+                (num - j[k]).abs() < 0.05 * j.norm(),
+                "k={k} numeric {num} analytic {}",
+                j[k]
+            );
+        }
+    }
+
+    #[test]
+    fn levels_are_thinned_capped_and_consistent() {
+        let cam = CameraModel::euroc_cam0();
+        let img = smooth(cam.width, cam.height);
+        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        pyr.fill_from_f32(&img);
+        let cfg = TrackerConfig {
+            min_gradient_gray_px: 1.0,
+            ..TrackerConfig::default()
+        };
+        let px = select_gradient_pixels(&pyr, &cfg);
+        assert!(px.len() > 5000, "{}", px.len());
+        let depth = Image::from_fn(cam.width, cam.height, |_, _| 2.0f32);
+        let pts = depth_points_from_map(&px, &depth, 0.05);
+        assert_eq!(pts.len(), px.len());
+        let kf = Keyframe::new(0, TimeNs(0), pyr, &cam, Isometry3::identity(), &pts, &cfg);
+        for (l, lv) in kf.levels.iter().enumerate() {
+            assert!(!lv.is_empty() && lv.len() <= cfg.max_points_per_level[l]);
+            // Every point projects where its stored intensity was sampled.
+            for (p, i) in lv.p_kf_m.iter().zip(&lv.intensity).take(50) {
+                let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                let uv = kf.cameras[l].project(&q).unwrap();
+                let s = bilinear(kf.pyramid.level(l), uv.x as f32, uv.y as f32).unwrap();
+                assert!((s - i).abs() < 0.05, "level {l}: {s} vs {i}");
+            }
+        }
+        assert!((kf.median_depth_m - 2.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn depth_edges_are_dropped() {
+        let depth = Image::from_fn(10, 10, |x, _| if x < 5 { 1.0f32 } else { 3.0 });
+        let pts = depth_points_from_map(&[(2, 5), (5, 5), (7, 5), (0, 0)], &depth, 0.05);
+        let us: Vec<f32> = pts.iter().map(|p| p.u_px).collect();
+        assert_eq!(us, vec![2.0, 7.0]);
+    }
+}

@@ -1,0 +1,526 @@
+//! The tracking thread's estimator (section III-C): per frame, one Gauss-Newton problem over the
+//! photometric residual against the keyframe (eq. 23) and the IMU residual against the previous
+//! frame (eq. 13), coarse to fine, solved with the Schur complement (eq. 16–22) and seeded by the
+//! IMU prediction (eq. 1–6).
+//!
+//! # State and blocks
+//! The unknowns are frame j's 15-state of eq. 11 plus the affine brightness `(α, β)`. The pose
+//! block `P` of eq. 20 is `[δθ, δt, δα, δβ]` (8; photometric and IMU residuals), the IMU block `I`
+//! is `[δv, δb_ω, δb_a]` (9; IMU residual only, `J_I^{r_ph} = 0`). Frame i is fixed (section
+//! III-A) but not certain: its covariance enters the IMU residual's weight through
+//! [`crate::imu::imu_residual_covariance`], which makes each frame's solution the exact
+//! marginalisation of frame i (velocity is corrected through its correlation with position).
+//!
+//! # From the inverse-compositional increment to the body increment
+//! The photometric Jacobian is precomputed for the keyframe-side increment `ε` (eq. 24–26). The
+//! body increment `δ = [δθ, δt]` (`T_wb ← T_wb (Exp δθ, δt)`) moves the current camera as the IC
+//! update `T_ck ← T_ck exp(ε)⁻¹` does when `ε = Ad(T_kb) δ`, with `T_kb` the current estimate of
+//! the body in the keyframe camera frame. Hence `J_P^{r_ph} = J_ε Ad(T_kb)`, and the 8x8 IC system
+//! is carried to the body increment as `Adᵀ H Ad`, `Adᵀ b` — the per-point work stays that of the
+//! inverse-compositional method.
+
+use super::config::{NUM_LEVELS, TrackerConfig};
+use super::keyframe::Keyframe;
+use super::photometric::{PhotometricSystem, RobustCost, accumulate};
+use super::schur::BlockSystem;
+use crate::camera::CameraModel;
+use crate::geometry::adjoint;
+use crate::image::{Image, Pyramid};
+use crate::imu::residual::block;
+use crate::imu::{
+    FrameState, ImuNoise, Matrix15, Preintegration, Vector15, imu_jacobian_j, imu_residual,
+    imu_residual_covariance,
+};
+use crate::time::TimeNs;
+use nalgebra::{Isometry3, SMatrix, SVector};
+use std::time::Instant;
+
+/// Why a frame's visual-inertial solution was not trusted. The frame's state is then the IMU
+/// prediction (with the IMU-only covariance), never the rejected solution.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FlagReason {
+    /// No keyframe to track against (vision is waiting for a map).
+    NoKeyframe,
+    /// The normal equations were not positive definite.
+    SolverFailed,
+    /// The solution or its cost was not finite.
+    NonFinite,
+    /// Too few photometric inliers (occlusion, covered lens, lost track).
+    FewInliers,
+    /// The solution contradicts the IMU prediction beyond `max_imu_chi2`.
+    ImuInconsistent,
+}
+
+impl FlagReason {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FlagReason::NoKeyframe => "no_keyframe",
+            FlagReason::SolverFailed => "solver_failed",
+            FlagReason::NonFinite => "non_finite",
+            FlagReason::FewInliers => "few_inliers",
+            FlagReason::ImuInconsistent => "imu_inconsistent",
+        }
+    }
+}
+
+/// Everything the tracker knows about one frame.
+#[derive(Clone, Debug)]
+pub struct TrackResult {
+    pub t: TimeNs,
+    /// Frame j's 15-state (pose of the body in the world, velocity, biases).
+    pub state: FrameState,
+    /// Covariance of `state` in the increment order of eq. 11 `[δθ, δt, δv, δb_ω, δb_a]`
+    /// (rotation and translation increments in the body frame), from the final Hessian with the
+    /// brightness parameters marginalised.
+    pub covariance: Matrix15,
+    /// Affine brightness relative to the keyframe: `I_j ≈ e^log_gain I_i + offset_gray`.
+    pub log_gain: f64,
+    pub offset_gray: f64,
+    /// `Some` if the visual-inertial solution was rejected (state = IMU prediction).
+    pub flag: Option<FlagReason>,
+    /// Accepted Gauss-Newton iterations per level (index 0 = full resolution).
+    pub iterations: [u8; NUM_LEVELS],
+    /// Level-0 keyframe points that are inliers in this frame / all level-0 points.
+    pub inlier_ratio: f64,
+    /// Level-0 keyframe points that project into this frame / all.
+    pub overlap: f64,
+    /// RMS of the level-0 inlier residuals, gray levels.
+    pub residual_rms_gray: f64,
+    /// `rᵀ A r` of the IMU residual at the solution (15 dof).
+    pub imu_chi2: f64,
+    /// Keyframe tracked against.
+    pub keyframe_id: Option<u32>,
+    /// The keyframe policy asks for a new keyframe at this frame.
+    pub wants_keyframe: bool,
+    /// Wall time spent in [`Tracker::track`], s.
+    pub time_s: f64,
+}
+
+/// One evaluation of the joint problem at a state.
+struct Evaluation {
+    sys: BlockSystem<8, 9>,
+    cost: f64,
+    ph: Option<PhotometricSystem>,
+    r_imu: Vector15,
+}
+
+/// The frame-rate visual-inertial tracker. Buffers (current pyramid, residual scratch) are
+/// allocated once; [`Tracker::track`] does not allocate.
+pub struct Tracker {
+    cfg: TrackerConfig,
+    cameras: Vec<CameraModel>,
+    t_body_cam: Isometry3<f64>,
+    noise: ImuNoise,
+    frame: Pyramid,
+    keyframe: Option<Keyframe>,
+    state: FrameState,
+    cov: Matrix15,
+    log_gain: f64,
+    offset_gray: f64,
+    scratch: Vec<f32>,
+}
+
+impl Tracker {
+    /// A tracker at `state` with covariance `cov` (eq. 11 increment order).
+    pub fn new(
+        cfg: TrackerConfig,
+        camera: &CameraModel,
+        t_body_cam: Isometry3<f64>,
+        noise: ImuNoise,
+        state: FrameState,
+        cov: Matrix15,
+    ) -> Self {
+        let cameras = (0..NUM_LEVELS)
+            .map(|l| camera.scaled_to_level(l as u32))
+            .collect();
+        let max_pts = cfg.max_points_per_level.iter().copied().max().unwrap_or(0);
+        Tracker {
+            frame: Pyramid::new(camera.width, camera.height, NUM_LEVELS),
+            cfg,
+            cameras,
+            t_body_cam,
+            noise,
+            keyframe: None,
+            state,
+            cov,
+            log_gain: 0.0,
+            offset_gray: 0.0,
+            scratch: Vec::with_capacity(max_pts),
+        }
+    }
+
+    pub fn config(&self) -> &TrackerConfig {
+        &self.cfg
+    }
+    pub fn state(&self) -> &FrameState {
+        &self.state
+    }
+    pub fn covariance(&self) -> &Matrix15 {
+        &self.cov
+    }
+    pub fn keyframe(&self) -> Option<&Keyframe> {
+        self.keyframe.as_ref()
+    }
+    /// The pyramid of the last frame given to [`Tracker::track`] or [`Tracker::load_frame`].
+    pub fn frame_pyramid(&self) -> &Pyramid {
+        &self.frame
+    }
+    /// Camera pose of the current state, `T_wb · T_bc`.
+    pub fn t_world_cam(&self) -> Isometry3<f64> {
+        pose_of(&self.state) * self.t_body_cam
+    }
+
+    /// Loads an image as the current frame without tracking it (the first frame).
+    pub fn load_frame(&mut self, image: &Image<u8>) {
+        self.frame.fill_from_u8(image);
+    }
+
+    /// Replaces the state (start-up, re-initialisation).
+    pub fn reset_state(&mut self, state: FrameState, cov: Matrix15) {
+        self.state = state;
+        self.cov = cov;
+    }
+
+    /// Makes `kf` the keyframe tracked against; brightness is then relative to it.
+    pub fn set_keyframe(&mut self, kf: Keyframe) {
+        self.keyframe = Some(kf);
+        self.log_gain = 0.0;
+        self.offset_gray = 0.0;
+    }
+
+    /// Drops the keyframe (tracking loss): frames are IMU-only until a new one is set.
+    pub fn clear_keyframe(&mut self) {
+        self.keyframe = None;
+    }
+
+    /// Tracks frame j at `t`, given the IMU preintegrated from the previous frame
+    /// (`pre.t_start` = previous frame, linearised at the current bias estimate).
+    pub fn track(&mut self, t: TimeNs, image: &Image<u8>, pre: &Preintegration) -> TrackResult {
+        let started = Instant::now();
+        self.frame.fill_from_u8(image);
+        let xi = self.state;
+        let x_pred = FrameState {
+            nav: pre.predict(&xi.nav, &xi.bias),
+            bias: xi.bias,
+        };
+        // White-noise part inflated by `imu_noise_scale` (covariance ∝ density²).
+        let mut pre_w = pre.clone();
+        pre_w.cov *= self.cfg.imu_noise_scale.powi(2);
+        let mut cov_r = imu_residual_covariance(&pre_w, &self.noise, &xi, &x_pred, &self.cov);
+        for k in 0..15 {
+            cov_r[(k, k)] += 1e-14; // a zero-length interval has no noise at all
+        }
+        let a_imu = cov_r
+            .cholesky()
+            .map(|c| c.inverse())
+            .unwrap_or_else(|| Matrix15::identity() * 1e12);
+        let mut res = TrackResult {
+            t,
+            state: x_pred,
+            covariance: self.cov,
+            log_gain: self.log_gain,
+            offset_gray: self.offset_gray,
+            flag: None,
+            iterations: [0; NUM_LEVELS],
+            inlier_ratio: 0.0,
+            overlap: 0.0,
+            residual_rms_gray: f64::NAN,
+            imu_chi2: 0.0,
+            keyframe_id: self.keyframe.as_ref().map(|k| k.id),
+            wants_keyframe: false,
+            time_s: 0.0,
+        };
+
+        let vision = self.cfg.use_vision && self.keyframe.is_some();
+        let outcome = if vision {
+            self.solve_visual_inertial(pre, &xi, &x_pred, &a_imu, &mut res)
+        } else {
+            if self.cfg.use_vision {
+                res.flag = Some(FlagReason::NoKeyframe);
+            }
+            None
+        };
+        match outcome {
+            Some((x, cov, lg, off)) => {
+                res.state = x;
+                res.covariance = cov;
+                res.log_gain = lg;
+                res.offset_gray = off;
+            }
+            None => {
+                // IMU only: the prediction, with the covariance of the IMU-only solution.
+                let eval = self.evaluate(None, pre, &xi, &x_pred, &a_imu, (0.0, 0.0), 1.0);
+                res.state = x_pred;
+                res.covariance = marginal_covariance(&eval.sys).unwrap_or(cov_r);
+            }
+        }
+        self.state = res.state;
+        self.cov = res.covariance;
+        self.log_gain = res.log_gain;
+        self.offset_gray = res.offset_gray;
+        if let Some(kf) = &self.keyframe {
+            let t_kc = kf.t_world_cam.inverse() * pose_of(&res.state) * self.t_body_cam;
+            let baseline = t_kc.translation.vector.norm() / kf.median_depth_m.max(1e-3);
+            res.wants_keyframe = res.overlap < self.cfg.keyframe_min_overlap
+                || baseline > self.cfg.keyframe_max_baseline_ratio
+                || t_kc.rotation.angle() > self.cfg.keyframe_max_rotation_rad
+                || res.flag == Some(FlagReason::FewInliers);
+        }
+        res.time_s = started.elapsed().as_secs_f64();
+        res
+    }
+
+    /// Coarse-to-fine Gauss-Newton with step control; `None` if the solution is rejected
+    /// (`res.flag` says why).
+    fn solve_visual_inertial(
+        &mut self,
+        pre: &Preintegration,
+        xi: &FrameState,
+        x_pred: &FrameState,
+        a_imu: &Matrix15,
+        res: &mut TrackResult,
+    ) -> Option<(FrameState, Matrix15, f64, f64)> {
+        let mut x = *x_pred;
+        let mut aff = (self.log_gain, self.offset_gray);
+        let mut last: Option<Evaluation> = None;
+        let median_depth = self.keyframe.as_ref().map_or(1.0, |k| k.median_depth_m);
+        for level in (0..NUM_LEVELS).rev() {
+            // Photometric noise scale of this level from the residuals at the start state.
+            let probe = self.evaluate(Some(level), pre, xi, &x, a_imu, aff, 1.0);
+            let Some(ph) = &probe.ph else { continue };
+            if ph.num_valid < 8 {
+                continue;
+            }
+            let sigma2 = self.robust_sigma2();
+            let mut cur = self.evaluate(Some(level), pre, xi, &x, a_imu, aff, sigma2);
+            let mut lambda = 0.0f64;
+            let f_px = self.cameras[level].fx.max(self.cameras[level].fy);
+            let mut accepted = 0u8;
+            let mut tries = 0usize;
+            while tries < 3 * self.cfg.max_iterations_per_level[level.min(NUM_LEVELS - 1)] {
+                if accepted as usize >= self.cfg.max_iterations_per_level[level] {
+                    break;
+                }
+                tries += 1;
+                let Some((dp, di)) = damped(&cur.sys, lambda).solve_schur() else {
+                    if lambda == 0.0 {
+                        lambda = 1e-4;
+                        continue;
+                    }
+                    res.flag = Some(FlagReason::SolverFailed);
+                    return None;
+                };
+                let (x_new, aff_new) = apply(&x, aff, &dp, &di);
+                let new = self.evaluate(Some(level), pre, xi, &x_new, a_imu, aff_new, sigma2);
+                if new.cost.is_finite() && new.cost <= cur.cost {
+                    x = x_new;
+                    aff = aff_new;
+                    cur = new;
+                    accepted += 1;
+                    lambda = if lambda < 1e-6 { 0.0 } else { lambda * 0.1 };
+                    let step_px = f_px
+                        * (dp.fixed_rows::<3>(0).norm()
+                            + dp.fixed_rows::<3>(3).norm() / median_depth.max(1e-3));
+                    if step_px < self.cfg.convergence_px {
+                        break;
+                    }
+                } else {
+                    lambda = if lambda == 0.0 { 1e-4 } else { lambda * 10.0 };
+                    if lambda > 1e3 {
+                        break;
+                    }
+                }
+            }
+            res.iterations[level] = accepted;
+            if level == 0 {
+                last = Some(cur);
+            }
+        }
+        let Some(fin) = last else {
+            res.flag = Some(FlagReason::FewInliers);
+            return None;
+        };
+        let ph = fin.ph.as_ref()?;
+        let n0 = ph.num_points.max(1) as f64;
+        res.inlier_ratio = ph.num_inliers as f64 / n0;
+        res.overlap = ph.num_valid as f64 / n0;
+        res.residual_rms_gray = ph.inlier_rms_gray();
+        res.imu_chi2 = fin.r_imu.dot(&(a_imu * fin.r_imu));
+        let all_finite = fin.cost.is_finite()
+            && x.nav.p_world_m.iter().all(|v| v.is_finite())
+            && x.nav.v_world_m_s.iter().all(|v| v.is_finite())
+            && x.nav.r_world_body.coords.iter().all(|v| v.is_finite())
+            && aff.0.is_finite()
+            && aff.1.is_finite();
+        if !all_finite {
+            res.flag = Some(FlagReason::NonFinite);
+            return None;
+        }
+        if res.inlier_ratio < self.cfg.min_inlier_ratio {
+            res.flag = Some(FlagReason::FewInliers);
+            return None;
+        }
+        if res.imu_chi2 > self.cfg.max_imu_chi2 {
+            res.flag = Some(FlagReason::ImuInconsistent);
+            return None;
+        }
+        let Some(cov) = marginal_covariance(&fin.sys) else {
+            res.flag = Some(FlagReason::SolverFailed);
+            return None;
+        };
+        Some((x, cov, aff.0, aff.1))
+    }
+
+    /// `σ²` of the photometric residual from the last accumulation's MAD, floored.
+    fn robust_sigma2(&mut self) -> f64 {
+        let n = self.scratch.len();
+        let mad = if n == 0 {
+            0.0
+        } else {
+            let m = n / 2;
+            self.scratch.select_nth_unstable_by(m, f32::total_cmp);
+            self.scratch[m] as f64
+        };
+        let sigma = (1.4826 * mad).max(self.cfg.min_sigma_gray);
+        sigma * sigma * self.cfg.photometric_correlation.max(1e-6)
+    }
+
+    /// The normal equations and cost at `x` (photometric at `level` if `Some`, plus IMU, plus the
+    /// brightness prior), with the photometric term weighted by `1/sigma2`.
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate(
+        &mut self,
+        photometric_level: Option<usize>,
+        pre: &Preintegration,
+        xi: &FrameState,
+        x: &FrameState,
+        a_imu: &Matrix15,
+        aff: (f64, f64),
+        sigma2: f64,
+    ) -> Evaluation {
+        let mut sys = BlockSystem::<8, 9>::zeros();
+        let mut cost = 0.0;
+        let mut ph_out = None;
+        if let (Some(level), Some(kf)) = (photometric_level, &self.keyframe) {
+            let t_w_b = pose_of(x);
+            let t_k_b = kf.t_world_cam.inverse() * t_w_b;
+            let t_c_k = (t_k_b * self.t_body_cam).inverse();
+            let robust = RobustCost {
+                huber_gray: self.cfg.huber_gray,
+                outlier_gray: self.cfg.outlier_gray,
+                border_px: self.cfg.border_px,
+            };
+            let gain = aff.0.exp();
+            let ph = accumulate(
+                &kf.levels[level],
+                &kf.cameras[level],
+                self.frame.level(level),
+                &t_c_k,
+                (gain, aff.1),
+                &robust,
+                &mut self.scratch,
+            );
+            let (h8, b8) = ph.normal_equations(gain);
+            let mut a8 = SMatrix::<f64, 8, 8>::identity();
+            a8.fixed_view_mut::<6, 6>(0, 0).copy_from(&adjoint(&t_k_b));
+            let inv_s2 = 1.0 / sigma2;
+            sys.h_pp = a8.transpose() * h8 * a8 * inv_s2;
+            sys.b_p = a8.transpose() * b8 * inv_s2;
+            cost += ph.cost * inv_s2;
+            ph_out = Some(ph);
+            // Brightness prior relative to the previous frame's values.
+            let (wa, wb) = (
+                1.0 / self.cfg.affine_gain_prior_std.powi(2),
+                1.0 / self.cfg.affine_offset_prior_std_gray.powi(2),
+            );
+            let (ea, eb) = (aff.0 - self.log_gain, aff.1 - self.offset_gray);
+            sys.h_pp[(6, 6)] += wa;
+            sys.h_pp[(7, 7)] += wb;
+            sys.b_p[6] -= wa * ea;
+            sys.b_p[7] -= wb * eb;
+            cost += 0.5 * (wa * ea * ea + wb * eb * eb);
+        } else {
+            // No photometric term: keep the brightness block regular.
+            sys.h_pp[(6, 6)] = 1.0;
+            sys.h_pp[(7, 7)] = 1.0;
+        }
+        // IMU residual (eq. 13) with its analytic Jacobian w.r.t. frame j (eq. 33–52).
+        let r = imu_residual(pre, xi, x);
+        let j = imu_jacobian_j(pre, xi, x);
+        let h15 = j.transpose() * a_imu * j;
+        let b15 = -(j.transpose() * (a_imu * r));
+        cost += 0.5 * r.dot(&(a_imu * r));
+        // Pose columns [θ, t] -> P[0..6]; [v, bω, ba] -> I[0..9].
+        let pose = block::VEL; // first 6 entries are the pose
+        for a in 0..15 {
+            for b in 0..15 {
+                let v = h15[(a, b)];
+                match (a < pose, b < pose) {
+                    (true, true) => sys.h_pp[(a, b)] += v,
+                    (true, false) => sys.h_pi[(a, b - pose)] += v,
+                    (false, false) => sys.h_ii[(a - pose, b - pose)] += v,
+                    (false, true) => {}
+                }
+            }
+            if a < pose {
+                sys.b_p[a] += b15[a];
+            } else {
+                sys.b_i[a - pose] += b15[a];
+            }
+        }
+        Evaluation {
+            sys,
+            cost,
+            ph: ph_out,
+            r_imu: r,
+        }
+    }
+}
+
+/// Body pose `T_wb` of a state.
+pub fn pose_of(x: &FrameState) -> Isometry3<f64> {
+    Isometry3::from_parts(x.nav.p_world_m.into(), x.nav.r_world_body)
+}
+
+/// Levenberg-style damping of the diagonal (`λ = 0`: the paper's plain Gauss-Newton).
+fn damped(sys: &BlockSystem<8, 9>, lambda: f64) -> BlockSystem<8, 9> {
+    let mut s = sys.clone();
+    if lambda > 0.0 {
+        for k in 0..8 {
+            s.h_pp[(k, k)] *= 1.0 + lambda;
+        }
+        for k in 0..9 {
+            s.h_ii[(k, k)] *= 1.0 + lambda;
+        }
+    }
+    s
+}
+
+/// Applies `δ_P = [δθ, δt, δα, δβ]`, `δ_I = [δv, δbω, δba]` (eq. 34, 36, 38 and the biases).
+fn apply(
+    x: &FrameState,
+    aff: (f64, f64),
+    dp: &SVector<f64, 8>,
+    di: &SVector<f64, 9>,
+) -> (FrameState, (f64, f64)) {
+    let mut d = Vector15::zeros();
+    d.fixed_rows_mut::<6>(0).copy_from(&dp.fixed_rows::<6>(0));
+    d.fixed_rows_mut::<9>(6).copy_from(di);
+    (x.boxplus(&d), (aff.0 + dp[6], aff.1 + dp[7]))
+}
+
+/// Covariance of the 15-state from the joint Hessian (inverse of the full 17x17, brightness
+/// marginalised by taking the sub-block).
+fn marginal_covariance(sys: &BlockSystem<8, 9>) -> Option<Matrix15> {
+    let mut h = SMatrix::<f64, 17, 17>::zeros();
+    h.fixed_view_mut::<8, 8>(0, 0).copy_from(&sys.h_pp);
+    h.fixed_view_mut::<8, 9>(0, 8).copy_from(&sys.h_pi);
+    h.fixed_view_mut::<9, 8>(8, 0)
+        .copy_from(&sys.h_pi.transpose());
+    h.fixed_view_mut::<9, 9>(8, 8).copy_from(&sys.h_ii);
+    let inv = h.cholesky()?.inverse();
+    // 17-index of each 15-state entry: θ,t = 0..6; v, bω, ba = 8..17.
+    let idx = |k: usize| if k < 6 { k } else { k + 2 };
+    let cov = Matrix15::from_fn(|a, b| inv[(idx(a), idx(b))]);
+    cov.iter().all(|v| v.is_finite()).then_some(cov)
+}
