@@ -1,0 +1,91 @@
+//! One tracking step (issue 4): a 752x480 frame of the built-in flight tracked against a keyframe
+//! 100 ms earlier with ground-truth depth, from the IMU prediction — pyramid, coarse-to-fine joint
+//! visual-inertial Gauss-Newton and covariance. Also the keyframe construction it amortises.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use vidslam::dataset::AslDataset;
+use vidslam::imu::{FrameState, ImuBias, Matrix15, NavState, Preintegration};
+use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
+use vidslam::tracking::{
+    Keyframe, Tracker, TrackerConfig, depth_points_from_map, select_gradient_pixels,
+};
+
+fn bench(c: &mut Criterion) {
+    let dir = std::env::temp_dir().join(format!("vidslam-bench-tracking-{}", std::process::id()));
+    let mut sim = SimConfig::new(
+        dir.clone(),
+        TrajectorySource::Builtin("demo".into()),
+        ImuSource::Synth,
+    );
+    sim.start_s = Some(12.0);
+    sim.seconds = Some(0.2);
+    sim.force = true;
+    generate(&sim).unwrap();
+    let ds = AslDataset::open(&dir).unwrap();
+    let gt = ds.ground_truth().unwrap().unwrap();
+    let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
+    let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
+    let (f0, f1) = (&frames[0], &frames[2]);
+    let s0 = gt.nearest(f0.t, 0).unwrap();
+    let x0 = FrameState {
+        nav: NavState {
+            t: f0.t,
+            r_world_body: s0.t_world_body.rotation,
+            p_world_m: s0.t_world_body.translation.vector,
+            v_world_m_s: s0.v_world_m_s.unwrap(),
+        },
+        bias: ImuBias {
+            gyro_rad_s: s0.gyro_bias_rad_s.unwrap(),
+            accel_m_s2: s0.accel_bias_m_s2.unwrap(),
+        },
+    };
+    let cfg = TrackerConfig::default();
+    let cam = ds.camera.model;
+    let cov0 = Matrix15::identity() * 1e-6;
+    let mut tr = Tracker::new(
+        cfg.clone(),
+        &cam,
+        ds.camera.t_body_cam,
+        ds.imu.noise,
+        x0,
+        cov0,
+    );
+    let img0 = f0.load().unwrap();
+    tr.load_frame(&img0);
+    let depth = ds.load_depth_m(f0.t).unwrap().unwrap();
+    let pixels = select_gradient_pixels(tr.frame_pyramid(), &cfg);
+    let pts = depth_points_from_map(&pixels, &depth, 0.05);
+    let make_kf = |tr: &Tracker| {
+        Keyframe::new(
+            0,
+            f0.t,
+            tr.frame_pyramid().clone(),
+            &cam,
+            tr.t_world_cam(),
+            &pts,
+            &cfg,
+        )
+    };
+    c.bench_function("keyframe_from_gt_depth_752x480", |b| {
+        b.iter(|| make_kf(&tr))
+    });
+    let kf = make_kf(&tr);
+    tr.set_keyframe(kf);
+    let img1 = f1.load().unwrap();
+    let mut pre = Preintegration::new(f0.t, x0.bias);
+    pre.integrate(&imu, f1.t, Some(&ds.imu.noise));
+    c.bench_function("track_frame_752x480", |b| {
+        b.iter(|| {
+            tr.reset_state(x0, cov0);
+            tr.track(f1.t, &img1, &pre)
+        })
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(30);
+    targets = bench
+}
+criterion_main!(benches);
