@@ -1,0 +1,120 @@
+//! `vidslam replay --depth gt` through the binary: the files it promises, the report's keys,
+//! clear errors for a bad configuration and for a dataset without depth.
+
+use std::path::Path;
+use std::process::Command;
+
+fn vidslam(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_vidslam"))
+        .args(args)
+        .output()
+        .expect("run vidslam")
+}
+
+fn text(o: &std::process::Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+#[test]
+fn replay_writes_trajectory_report_csv_and_plot() {
+    let tmp = std::env::temp_dir().join(format!("vidslam-replay-cli-{}", std::process::id()));
+    let data = tmp.join("data");
+    let o = vidslam(&[
+        "sim",
+        "--out",
+        data.to_str().unwrap(),
+        "--start-s",
+        "12",
+        "--seconds",
+        "1.5",
+        "--force",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = tmp.join("out");
+    let o = vidslam(&[
+        "replay",
+        data.to_str().unwrap(),
+        "--depth",
+        "gt",
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(
+        t.contains("ATE RMSE") && t.contains("frames tracked"),
+        "{t}"
+    );
+    for f in [
+        "trajectory.tum",
+        "report.json",
+        "frames.csv",
+        "trajectory.png",
+    ] {
+        assert!(out.join(f).is_file(), "missing {f}");
+    }
+    let rep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    for k in [
+        "frames_in",
+        "frames_tracked",
+        "frames_flagged",
+        "tracking_ms_p50",
+        "tracking_ms_p99",
+        "tracking_ms_max",
+        "ate_rmse_m",
+        "scale_error_pct",
+    ] {
+        assert!(
+            rep.get(k).is_some_and(|v| !v.is_null()),
+            "report.json lacks {k}"
+        );
+    }
+    assert_eq!(rep["frames_in"], 30);
+    assert_eq!(rep["frames_flagged"], 0);
+    assert!(rep["ate_rmse_m"].as_f64().unwrap() < 0.02, "{rep}");
+    let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 31);
+
+    // A config key that does not exist: the error names the file, the line and the key.
+    let cfg = tmp.join("bad.toml");
+    std::fs::write(&cfg, "[tracking]\nhuber_gray = 9.0\nhubber_gray = 3.0\n").unwrap();
+    let o = vidslam(&[
+        "replay",
+        data.to_str().unwrap(),
+        "--depth",
+        "gt",
+        "--out",
+        out.to_str().unwrap(),
+        "--config",
+        cfg.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let t = text(&o);
+    assert!(!o.status.success());
+    assert!(
+        t.contains("bad.toml") && t.contains("line 3") && t.contains("hubber_gray"),
+        "{t}"
+    );
+
+    // No ground-truth depth for a keyframe: named.
+    std::fs::remove_dir_all(data.join("mav0/depth0")).unwrap();
+    let o = vidslam(&[
+        "replay",
+        data.to_str().unwrap(),
+        "--depth",
+        "gt",
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("depth0"), "{t}");
+    let _ = std::fs::remove_dir_all(Path::new(&tmp));
+}
