@@ -31,6 +31,8 @@ struct Candidate {
 #[derive(Clone, Copy, Debug)]
 struct PixelState {
     count: u8,
+    /// Views in which the epipolar curve was scanned.
+    searches: u8,
     estimates: [Estimate; MAX_ESTIMATES],
     prior: Option<Estimate>,
     run: Run,
@@ -39,6 +41,7 @@ struct PixelState {
 impl PixelState {
     const EMPTY: PixelState = PixelState {
         count: 0,
+        searches: 0,
         estimates: [Estimate {
             rho: 0.0,
             sigma: 0.0,
@@ -350,6 +353,10 @@ impl SemidenseKeyframe {
         let cfg = &self.cfg;
         let one = |c: &Candidate, st: &mut PixelState| -> ObserveStats {
             let mut s = ObserveStats::default();
+            if !st.run.lo.is_finite() && st.searches as usize >= cfg.give_up_after_searches {
+                s.given_up = 1;
+                return s;
+            }
             let (mut lo, mut hi) = (g_lo.max(st.run.lo as f64), g_hi.min(st.run.hi as f64));
             if !(lo < hi) {
                 (lo, hi) = (g_lo, g_hi);
@@ -376,6 +383,7 @@ impl SemidenseKeyframe {
                 Outcome::Ambiguous => (s.searched, s.ambiguous) = (1, 1),
                 Outcome::OutOfRange => (s.searched, s.out_of_range) = (1, 1),
             }
+            st.searches = st.searches.saturating_add(s.searched as u8);
             s
         };
         let counts = if cfg.parallel {

@@ -113,6 +113,10 @@ pub struct SemidenseConfig {
     /// Once two estimates agree, later searches cover only `± search_sigmas` standard deviations
     /// around them (κ; DPPTAM: ±3σ around [min, max]).
     pub search_sigmas: f32,
+    /// A pixel that has been searched in this many views without two estimates agreeing (no
+    /// narrowed window yet) is not searched any more: it is ambiguous, occluded or badly textured,
+    /// and its full-range searches would dominate the cost of later, wide-baseline views.
+    pub give_up_after_searches: usize,
     /// Votes needed in the consistent run for a point to be output (a propagated prior is one
     /// vote; DPPTAM needs a run of 4).
     pub min_consistent_views: usize,
@@ -149,6 +153,7 @@ impl Default for SemidenseConfig {
             match_std_px: 0.5,
             consistency_sigmas: 2.0,
             search_sigmas: 3.0,
+            give_up_after_searches: 6,
             min_consistent_views: 3,
             max_rel_inv_depth_std: 0.05,
             neighbour_radius_px: 2,
@@ -220,6 +225,8 @@ pub struct ObserveStats {
     pub ambiguous: usize,
     /// The refined match fell outside the search range.
     pub out_of_range: usize,
+    /// Not searched any more (`give_up_after_searches`).
+    pub given_up: usize,
 }
 
 impl ObserveStats {
@@ -232,6 +239,7 @@ impl ObserveStats {
         self.photometric += o.photometric;
         self.ambiguous += o.ambiguous;
         self.out_of_range += o.out_of_range;
+        self.given_up += o.given_up;
         self
     }
 }

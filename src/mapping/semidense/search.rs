@@ -14,8 +14,12 @@ const PATCH: usize = 49;
 const KNOT_PX: f64 = 8.0;
 /// Longest walk, px (longer than any image diagonal the mapper is meant for).
 const MAX_WALK_PX: f64 = 4000.0;
-/// Gauss–Newton iterations of the sub-pixel refinement.
-const GN_ITERATIONS: usize = 3;
+/// Gauss–Newton steps of the sub-pixel refinement.
+const GN_STEPS: usize = 2;
+/// The second scan minimum is checked with the full template only if its 5-sample cost is below
+/// this factor times the best one's (or times the noise floor, gray levels², if that is larger).
+const SECOND_SCAN_RATIO: f32 = 4.0;
+const SCAN_NOISE_FLOOR: f32 = 50.0;
 /// Scan window extension beyond the range ends, px (the 5-sample window's half-width + 1).
 const SCAN_MARGIN_PX: f64 = 3.0;
 
@@ -273,6 +277,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
 
     // Epipolar scan: 1-px steps along the curve, exact at knots, 5-sample zero-mean SSD.
     let (vd, vs) = (ctx.image.data(), ctx.image.stride());
+    let (x_lim, y_lim) = ((ctx.image.width() - 1) as f32, (ctx.image.height() - 1) as f32);
     let pix = |s: f64| {
         let u = to_pixel(cam, &n_at(s)).0;
         [u.x as f32, u.y as f32]
@@ -281,10 +286,9 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         .ceil()
         .max(1.0) as usize;
     let ds_seg = (s_b - s_a) / n_seg as f64;
-    let mut ring_v = [0.0f32; 5];
-    let mut ring_s = [0.0f64; 5];
+    let mut w = [0.0f32; 5];
+    let mut ws = [0.0f64; 3];
     let mut filled = 0usize; // consecutive valid samples
-    let mut head = 0usize;
     let (mut c_prev2, mut c_prev, mut s_prev) = (f32::INFINITY, f32::INFINITY, 0.0f64);
     let mut minima = Minima([(f32::INFINITY, f64::NAN); 2]);
     let mut s_k = s_a;
@@ -299,12 +303,13 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         let u_k1 = pix(s_k1);
         let (ddx, ddy) = (u_k1[0] - u_k[0], u_k1[1] - u_k[1]);
         let len = (ddx * ddx + ddy * ddy).sqrt();
+        let inv_len = 1.0 / len;
+        let (stx, sty, sts) = (ddx * inv_len, ddy * inv_len, (s_k1 - s_k) * inv_len as f64);
         while off < len {
-            let f = off / len;
-            let (ux, uy) = (u_k[0] + f * ddx, u_k[1] + f * ddy);
-            let s = s_k + (s_k1 - s_k) * f as f64;
+            let (ux, uy) = (u_k[0] + off * stx, u_k[1] + off * sty);
+            let s = s_k + off as f64 * sts;
             off += 1.0;
-            if !cell_inside(ctx.image, ux, uy) {
+            if !(ux >= 0.0 && uy >= 0.0 && ux < x_lim && uy < y_lim) {
                 filled = 0;
                 // a gap ends a run of costs: its last one may be a minimum
                 if c_prev <= c_prev2 {
@@ -313,26 +318,22 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
                 (c_prev2, c_prev) = (f32::INFINITY, f32::INFINITY);
                 continue;
             }
-            ring_v[head] = sample(vd, vs, ux, uy);
-            ring_s[head] = s;
-            head = (head + 1) % 5;
+            // the window (last 5 samples, oldest first) is shifted in registers
+            w = [w[1], w[2], w[3], w[4], sample(vd, vs, ux, uy)];
+            ws = [ws[1], ws[2], s];
             filled += 1;
             if filled < 5 {
                 continue;
             }
-            // window = the last 5 samples, oldest first at `head`
-            let (mut sv, mut svv, mut svt) = (0.0f32, 0.0f32, 0.0f32);
-            for (j, t) in t5.iter().enumerate() {
-                let v = ring_v[(head + j) % 5];
-                sv += v;
-                svv += v * v;
-                svt += v * t;
-            }
-            let c = svv - sv * sv / 5.0 - 2.0 * svt + st5;
+            let sv = w[0] + w[1] + w[2] + w[3] + w[4];
+            let svv = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + w[3] * w[3] + w[4] * w[4];
+            let svt = w[0] * t5[0] + w[1] * t5[1] + w[2] * t5[2] + w[3] * t5[3] + w[4] * t5[4];
+            let c = svv - sv * sv * 0.2 - 2.0 * svt + st5;
             if c_prev <= c_prev2 && c_prev < c {
                 minima.push(c_prev, s_prev);
             }
-            (c_prev2, c_prev, s_prev) = (c_prev, c, ring_s[(head + 2) % 5]);
+            // the window's centre sample was taken 2 steps ago
+            (c_prev2, c_prev, s_prev) = (c_prev, c, ws[0]);
         }
         off -= len;
         s_k = s_k1;
@@ -345,46 +346,42 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         return Outcome::OutOfView;
     }
 
-    // Full 7x7 check of both minima (eq. 28), then the ambiguity test.
-    let eval7 = |s: f64| patch_cost(ctx.image, pix(s), &af, &t7);
-    let c1 = eval7(minima.0[0].1);
-    let c2 = if minima.0[1].0.is_finite() {
-        eval7(minima.0[1].1)
-    } else {
-        None
-    };
-    let (mut best_c, mut best_s, other) = match (c1, c2) {
-        (Some(c1), Some(c2)) if c2 < c1 => (c2, minima.0[1].1, Some(c1)),
-        (Some(c1), c2) => (c1, minima.0[0].1, c2),
-        (None, Some(c2)) => (c2, minima.0[1].1, None),
-        (None, None) => return Outcome::OutOfView,
-    };
-    if let Some(o) = other {
-        if o < ctx.min_second_best_ratio * best_c {
-            return Outcome::Ambiguous;
-        }
-    }
-
-    // Sub-pixel: Gauss–Newton on the curve parameter, keeping the best evaluated point.
-    let s_int = best_s;
-    let mut s = s_int;
-    for it in 0..=GN_ITERATIONS {
+    // Full 7x7 check (eq. 28) of the best minimum, with the Gauss–Newton terms of the refinement;
+    // the second minimum is checked too unless its scan cost is far worse.
+    let gn_at = |s: f64| {
         let (u, jp) = to_pixel(cam, &n_at(s));
         let ut = jp * dn;
-        let ut_norm = ut.norm();
-        let Some((c, g, h)) = patch_cost_gn(
+        patch_cost_gn(
             ctx.image,
             [u.x as f32, u.y as f32],
             &af,
             &t7,
             [ut.x as f32, ut.y as f32],
-        ) else {
-            break;
-        };
-        if c < best_c {
-            (best_c, best_s) = (c, s);
+        )
+        .map(|(c, g, h)| (c, g, h, ut.norm()))
+    };
+    let [(_, s1), (c2_scan, s2)] = minima.0;
+    let first = gn_at(s1);
+    let check_second = c2_scan <= SECOND_SCAN_RATIO * minima.0[0].0.max(SCAN_NOISE_FLOOR);
+    let second = if check_second { gn_at(s2) } else { None };
+    let (mut s, mut gn, other) = match (first, second) {
+        (Some(a), Some(b)) if b.0 < a.0 => (s2, b, Some(a.0)),
+        (Some(a), b) => (s1, a, b.map(|b| b.0)),
+        (None, Some(b)) => (s2, b, None),
+        (None, None) => return Outcome::OutOfView,
+    };
+    if let Some(o) = other {
+        if o < ctx.min_second_best_ratio * gn.0 {
+            return Outcome::Ambiguous;
         }
-        if it == GN_ITERATIONS || !(h > 0.0) {
+    }
+
+    // Sub-pixel: Gauss–Newton on the curve parameter, keeping the best evaluated point.
+    let s_int = s;
+    let (mut best_c, mut best_s) = (gn.0, s);
+    for it in 0..GN_STEPS {
+        let (_, g, h, ut_norm) = gn;
+        if !(h > 0.0) {
             break;
         }
         let step_px = (-(g / h) as f64 * ut_norm).clamp(-1.0, 1.0);
@@ -395,6 +392,18 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         if ((s - s_int) * ut_norm).abs() > 2.0 {
             break;
         }
+        let next = if it + 1 == GN_STEPS {
+            patch_cost(ctx.image, pix(s), &af, &t7).map(|c| (c, 0.0, 0.0, ut_norm))
+        } else {
+            gn_at(s)
+        };
+        let Some(next) = next else {
+            break;
+        };
+        if next.0 < best_c {
+            (best_c, best_s) = (next.0, s);
+        }
+        gn = next;
     }
     let rms = (best_c.max(0.0) / PATCH as f32).sqrt();
     if !(rms <= ctx.max_patch_rms) {
