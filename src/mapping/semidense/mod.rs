@@ -1,1 +1,245 @@
-//! Semidense inverse-depth mapping (paper section IV-A, eq. 27–28; details from DPPTAM).
+//! Semidense inverse-depth mapping (paper section IV-A, eq. 27–28; details from DPPTAM [20]).
+//!
+//! A [`SemidenseKeyframe`] holds one keyframe under construction: its raw image, camera, pose, its
+//! candidate (high-gradient) pixels and, per candidate, the inverse-depth estimates found so far.
+//! Every overlapping view passed to [`SemidenseKeyframe::observe`] contributes at most one
+//! estimate per candidate; [`SemidenseKeyframe::map`] fuses them into a [`SemidenseMap`] at any
+//! time. The caller (the mapping thread) decides which frames to feed and when the keyframe is
+//! finished.
+//!
+//! # Geometry: search along the *distorted* epipolar curve
+//!
+//! Images are never resampled. Candidates are integer pixels of the raw (distorted) keyframe
+//! image, which is also where [`MapPoint`] lives (the tracker samples distorted images). For a
+//! candidate with normalised ray `r` (z = 1) and inverse depth `ρ` (1/z in the keyframe), the point
+//! seen by a view is, up to scale, `X(ρ) = R r + ρ t` with `(R, t) = t_view_kf`: its normalised
+//! coordinates move along a straight line as `ρ` varies. That line is clipped to the depth range
+//! (and to points in front of the view) and to the normalised footprint of the image, then walked
+//! in 1-pixel steps *after* distortion (the curve is followed with exact distortion at knots every
+//! few pixels and straight in between), so any [`CameraModel`] works, and no field of view is lost
+//! to undistortion.
+//!
+//! # Per view: eq. 27–28 for one `o`
+//!
+//! For each candidate (`search` module):
+//! 1. The template warp `G` of eq. 28 is linearised: the 7x7 template around `u*` maps into the
+//!    view by the affine Jacobian `A` of keyframe pixel → view pixel at constant inverse depth
+//!    (fronto-parallel patch), evaluated once at the middle of the search range. This handles
+//!    in-plane rotation and scale change between views, which DPPTAM's unwarped SAD does not.
+//! 2. *Gradient vs. epipolar direction* (DPPTAM 1(b)): the view's epipolar direction pulled back to
+//!    the keyframe, `A⁻¹ e`, must not be near-perpendicular to the keyframe gradient, or the match
+//!    position along the line is undetermined; such views are skipped for that pixel.
+//! 3. *Epipolar scan* in 1-px steps with a 5-sample zero-mean SSD along the curve (each step
+//!    samples one new view pixel; LSD-SLAM's scan), keeping the two best local minima. DPPTAM scans
+//!    with a sparse 7x7 SAD instead; the 5-sample scan is ~10x cheaper and every minimum is then
+//!    checked with the full template.
+//! 4. The full 7x7 zero-mean SSD of eq. 28 decides between the two minima (a too-close second
+//!    minimum is rejected as *ambiguous*), then 1-D Gauss–Newton on the curve parameter minimises it
+//!    to sub-pixel precision (DPPTAM refines within ±1 px by a denser SAD scan). Zero-mean: the
+//!    auto exposure changes the brightness between frames.
+//! 5. The match is kept if its RMS patch residual is small (DPPTAM: mean SAD threshold). Its
+//!    inverse depth follows from the curve parameter in closed form, and its standard deviation is
+//!    the inverse-depth change for a shift of `match_std_px` along the curve (DPPTAM: 1 px),
+//!    divided by `|cos|` of the gradient/epipolar angle (LSD-SLAM's geometric error).
+//!
+//! # Fusion over views
+//!
+//! Eq. 27 minimises the photometric error summed over all views. Around each view's own minimum
+//! `ρ_o` its term is approximately quadratic with curvature `1/σ_o²`, so the minimiser of the sum
+//! is the inverse-variance weighted mean of the per-view estimates — provided they belong to the
+//! same minimum. The `fusion` module therefore first finds the largest *consistent run* (the
+//! inverse depth contained in most `ρ_o ± τ σ_o` intervals; DPPTAM 1(a) uses the spread of a
+//! sorted run over its mean uncertainty) and fuses only its members. Once a run of two exists, the
+//! next views search only the intersection of the members' `ρ ± κ σ` intervals (DPPTAM's range
+//! narrowing), which makes later, wide-baseline views cheap and unambiguous: feed views in order of
+//! increasing baseline (the keyframe's neighbours first) for the best speed.
+//!
+//! [`SemidenseKeyframe::map`] then keeps a pixel if its run has at least `min_consistent_views`
+//! votes, a small enough relative uncertainty, and enough spatial neighbours (5x5) whose inverse
+//! depths agree (DPPTAM 1(c); DPPTAM also averages with them, which is not done here).
+//!
+//! # Propagation
+//!
+//! [`SemidenseKeyframe::propagate_from`] moves every point of an earlier keyframe's map into this
+//! keyframe (DPPTAM's propagation): it becomes a prior on the pixel it lands on (and its 3x3
+//! neighbours if they have none), with an inflated standard deviation. The prior counts as one
+//! vote of the consistent run and bounds the first search, so seeded pixels converge with fewer
+//! views. Unlike DPPTAM, a propagated pixel is still searched: a prior alone never makes a point.
+//!
+//! Nothing assumes a scale: inverse depths are in 1/m given poses in metres.
+
+mod epipolar;
+mod fusion;
+mod keyframe;
+mod search;
+
+pub use keyframe::SemidenseKeyframe;
+
+use crate::camera::CameraModel;
+use nalgebra::Isometry3;
+
+/// Tuning of the semidense mapper. Pixel and gray-level thresholds are for full-resolution 8-bit
+/// images (gray levels 0..255).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SemidenseConfig {
+    /// A pixel is a candidate if its central-difference gradient magnitude reaches this, gray
+    /// levels per pixel.
+    pub min_gradient: f32,
+    /// At most this many candidates: the gradient threshold is raised until they fit (DPPTAM caps
+    /// at ~25,000 on half-resolution images).
+    pub max_candidates: usize,
+    /// Candidates keep this margin from the image border, px (DPPTAM: 5).
+    pub border_px: usize,
+    /// Initial search range, inverse depth 1/m; see [`SemidenseKeyframe::set_inv_depth_range`].
+    pub min_inv_depth_m_inv: f64,
+    /// Upper end of the initial search range, 1/m.
+    pub max_inv_depth_m_inv: f64,
+    /// A view is used for a pixel only if the whole search range spans at least this many pixels
+    /// along its epipolar curve (smaller: too little parallax to say anything), px.
+    pub min_parallax_px: f32,
+    /// Minimum `|cos|` between the keyframe gradient and the epipolar direction (DPPTAM: 0.2 for
+    /// tracking points, 0.3 for map points).
+    pub min_gradient_epipolar_cos: f32,
+    /// Largest accepted RMS residual of the zero-mean 7x7 patch, gray levels.
+    pub max_patch_rms: f32,
+    /// The second-best minimum's 7x7 cost must exceed the best one's by this factor, or the match
+    /// is ambiguous.
+    pub min_second_best_ratio: f32,
+    /// Position uncertainty of a match along the epipolar curve, px (DPPTAM: 1 px).
+    pub match_std_px: f32,
+    /// Estimates agree if an inverse depth lies within `consistency_sigmas` standard deviations of
+    /// each (τ; DPPTAM: spread/uncertainty < 1.9).
+    pub consistency_sigmas: f32,
+    /// Once two estimates agree, later searches cover only `± search_sigmas` standard deviations
+    /// around them (κ; DPPTAM: ±3σ around [min, max]).
+    pub search_sigmas: f32,
+    /// A pixel that has been searched in this many views without two estimates agreeing (no
+    /// narrowed window yet) is not searched any more: it is ambiguous, occluded or badly textured,
+    /// and its full-range searches would dominate the cost of later, wide-baseline views.
+    pub give_up_after_searches: usize,
+    /// Votes needed in the consistent run for a point to be output (a propagated prior is one
+    /// vote; DPPTAM needs a run of 4).
+    pub min_consistent_views: usize,
+    /// Largest relative standard deviation of the fused inverse depth (σ_ρ / ρ) of an output point.
+    pub max_rel_inv_depth_std: f32,
+    /// Neighbour check: window radius, px (2 = 5x5, as DPPTAM).
+    pub neighbour_radius_px: usize,
+    /// Neighbour check: at least this many fused neighbours must agree with the pixel.
+    pub min_agreeing_neighbours: usize,
+    /// Neighbour check: neighbours agree if their inverse depths differ by at most this relative
+    /// amount (slanted surfaces) plus `consistency_sigmas` combined standard deviations.
+    pub neighbour_rel_tolerance: f32,
+    /// Propagated priors: the moved standard deviation is multiplied by this…
+    pub prior_std_inflation: f32,
+    /// …and is at least this fraction of the propagated inverse depth.
+    pub prior_min_rel_std: f32,
+    /// Search the candidates of one `observe` in parallel on the rayon pool (the tracking thread
+    /// shares the cores, so off by default).
+    pub parallel: bool,
+}
+
+impl Default for SemidenseConfig {
+    fn default() -> Self {
+        SemidenseConfig {
+            min_gradient: 6.0,
+            max_candidates: 30_000,
+            border_px: 5,
+            min_inv_depth_m_inv: 0.01,
+            max_inv_depth_m_inv: 4.0,
+            min_parallax_px: 4.0,
+            min_gradient_epipolar_cos: 0.3,
+            max_patch_rms: 12.0,
+            min_second_best_ratio: 1.3,
+            match_std_px: 0.5,
+            consistency_sigmas: 2.0,
+            search_sigmas: 3.0,
+            give_up_after_searches: 6,
+            min_consistent_views: 3,
+            max_rel_inv_depth_std: 0.05,
+            neighbour_radius_px: 2,
+            min_agreeing_neighbours: 2,
+            neighbour_rel_tolerance: 0.03,
+            prior_std_inflation: 2.0,
+            prior_min_rel_std: 0.02,
+            parallel: false,
+        }
+    }
+}
+
+/// A finished (or current) semidense map of one keyframe.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SemidenseMap {
+    /// The keyframe's camera pose in the world.
+    pub t_world_cam: Isometry3<f64>,
+    /// The keyframe's camera (with its distortion: points are in distorted pixels).
+    pub camera: CameraModel,
+    pub points: Vec<MapPoint>,
+}
+
+/// One semidense point of a keyframe.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapPoint {
+    /// Pixel in the keyframe's original (distorted) image; integer-valued.
+    pub u_px: f32,
+    pub v_px: f32,
+    /// Inverse depth 1/z in the keyframe camera frame (z along the optical axis), 1/m.
+    pub inv_depth_m_inv: f32,
+    /// Standard deviation of the fused inverse depth, 1/m (assumes independent views, so it is
+    /// optimistic: all views share the keyframe's patch).
+    pub inv_depth_std_m_inv: f32,
+    /// Views whose estimates were fused into this point (a propagated prior not counted).
+    pub num_views: u16,
+}
+
+/// Why a whole view was skipped by [`SemidenseKeyframe::observe`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewSkip {
+    /// The view's or the keyframe's pose is not finite.
+    NonFinitePose,
+    /// The view's image size differs from the keyframe camera's.
+    ImageSizeMismatch,
+    /// The camera centres coincide (no baseline, no depth).
+    NoBaseline,
+}
+
+/// What one [`SemidenseKeyframe::observe`] did, per candidate pixel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ObserveStats {
+    /// The whole view was skipped (all counters below are then 0 except `candidates`).
+    pub skipped: Option<ViewSkip>,
+    /// Candidate pixels of the keyframe.
+    pub candidates: usize,
+    /// Candidates whose epipolar curve was scanned.
+    pub searched: usize,
+    /// Estimates added.
+    pub matched: usize,
+    /// The search range does not project into the view (or only behind it).
+    pub out_of_view: usize,
+    /// The search range spans fewer than `min_parallax_px` pixels.
+    pub low_parallax: usize,
+    /// Gradient near-perpendicular to the epipolar direction, or a degenerate patch warp.
+    pub gradient_parallel: usize,
+    /// Best patch residual above `max_patch_rms`.
+    pub photometric: usize,
+    /// Second-best minimum too close to the best.
+    pub ambiguous: usize,
+    /// The refined match fell outside the search range.
+    pub out_of_range: usize,
+    /// Not searched any more (`give_up_after_searches`).
+    pub given_up: usize,
+}
+
+impl ObserveStats {
+    fn add(mut self, o: &ObserveStats) -> Self {
+        self.searched += o.searched;
+        self.matched += o.matched;
+        self.out_of_view += o.out_of_view;
+        self.low_parallax += o.low_parallax;
+        self.gradient_parallel += o.gradient_parallel;
+        self.photometric += o.photometric;
+        self.ambiguous += o.ambiguous;
+        self.out_of_range += o.out_of_range;
+        self.given_up += o.given_up;
+        self
+    }
+}
