@@ -2,6 +2,7 @@
 
 pub mod camera;
 pub mod dataset;
+pub mod demo;
 pub mod eval;
 pub mod imu;
 
@@ -21,6 +22,8 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
+    /// Simulate the built-in flight, run the full odometry over it, print accuracy and timing.
+    Demo(demo::DemoArgs),
     /// Inspect ASL/EuRoC dataset folders.
     Dataset(dataset::DatasetArgs),
     /// Render a camera + IMU sequence with ground truth and depth (simulator).
@@ -40,6 +43,7 @@ pub enum Command {
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Demo(a) => demo::run(a),
         Command::Dataset(a) => dataset::run(a),
         Command::Sim(a) => sim::run(a),
         Command::Eval(args) => eval::run(&args),

@@ -2,24 +2,34 @@
 
 use crate::dataset::{AslDataset, TrajectoryFormat};
 use crate::eval::plot_report;
-use crate::runtime::report::frames_csv;
+use crate::runtime::replay::StartMode;
+use crate::runtime::report::{frames_csv, write_ply};
 use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
-/// Runs tracking over DIR (an ASL/EuRoC folder) and writes OUT/trajectory.tum (body pose in the
+/// Runs the odometry over DIR (an ASL/EuRoC folder) and writes OUT/trajectory.tum (body pose in the
 /// gravity-aligned world, every frame), OUT/frames.csv (per-frame diagnostics), OUT/report.json (frame counts, tracking time, ATE and
-/// scale error against ground truth with SE3 alignment) and OUT/trajectory.png.
+/// scale error against ground truth with SE3 alignment), OUT/trajectory.png and, with the
+/// semidense mapper, OUT/semidense.ply.
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
     /// The dataset folder (containing mav0/).
     pub dir: PathBuf,
-    /// Keyframe depth source. `gt`: the simulator's ground-truth depth (mav0/depth0), which
-    /// measures tracking alone.
-    #[arg(long, value_enum)]
+    /// Keyframe depth source. `semidense`: the mapping thread (the full odometry). `gt`: the
+    /// simulator's ground-truth depth (mav0/depth0) and start state, which measures tracking alone.
+    #[arg(long, value_enum, default_value = "semidense")]
     pub depth: DepthArg,
+    /// First state of the full odometry: `static` detects the vehicle at rest (the product's
+    /// way); `gt` takes the ground truth at the first frame (sequences that start in motion).
+    #[arg(long, value_enum, default_value = "static")]
+    pub start: StartArg,
+    /// Pace frames at their timestamps and never wait for the mapping thread, as on the vehicle
+    /// (then not deterministic).
+    #[arg(long)]
+    pub realtime: bool,
     /// Output folder (created).
     #[arg(long, default_value = "out/replay")]
     pub out: PathBuf,
@@ -39,7 +49,15 @@ pub struct ReplayArgs {
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum DepthArg {
+    /// The semidense mapping thread.
+    Semidense,
     /// Ground-truth depth maps of the simulator (mav0/depth0).
+    Gt,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum StartArg {
+    Static,
     Gt,
 }
 
@@ -48,6 +66,11 @@ pub fn run(a: ReplayArgs) -> anyhow::Result<()> {
         Some(p) => Config::read(p)?,
         None => Config::default(),
     };
+    run_with(&a, &cfg).map(|_| ())
+}
+
+/// Replays with an already loaded configuration; returns the report.
+pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     if let Some(s) = a.max_seconds
         && !(s.is_finite() && s > 0.0)
     {
@@ -55,9 +78,18 @@ pub fn run(a: ReplayArgs) -> anyhow::Result<()> {
     }
     let mut opts = ReplayOptions {
         tracker: cfg.tracking.clone(),
+        mapping: cfg.mapping.clone(),
+        static_detector: cfg.static_detector,
+        bootstrap: cfg.bootstrap.clone(),
         depth: match a.depth {
             DepthArg::Gt => DepthSource::GroundTruth,
+            DepthArg::Semidense => DepthSource::Semidense,
         },
+        start: match a.start {
+            StartArg::Static => StartMode::Static,
+            StartArg::Gt => StartMode::GroundTruth,
+        },
+        realtime: a.realtime,
         max_seconds: a.max_seconds,
         ..Default::default()
     };
@@ -86,6 +118,11 @@ pub fn run(a: ReplayArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
 
     let est = trajectory(&out);
+    if !out.mapping.keyframe_maps.is_empty() {
+        let ply = a.out.join("semidense.ply");
+        write_ply(&ply, &out.mapping.world_points())
+            .with_context(|| format!("writing {}", ply.display()))?;
+    }
     let traj_path = a.out.join("trajectory.tum");
     est.write(&traj_path, TrajectoryFormat::Tum)?;
     let mut report = ReplayReport::new(&out, opts.tracker.use_vision, depth_name(a.depth));
@@ -103,11 +140,12 @@ pub fn run(a: ReplayArgs) -> anyhow::Result<()> {
     }
     print!("{}", report.to_table());
     println!("wrote {}, {}", traj_path.display(), json_path.display());
-    Ok(())
+    Ok(report)
 }
 
 fn depth_name(d: DepthArg) -> &'static str {
     match d {
         DepthArg::Gt => "gt",
+        DepthArg::Semidense => "semidense",
     }
 }

@@ -114,7 +114,8 @@ pub const MAX_WINDOW_BLOCKS: usize = 32;
 
 /// Tuning of [`StaticDetector`]. The defaults suit a multirotor idling on the pad (see the
 /// module docs for the evidence behind them).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct StaticDetectorConfig {
     /// Averaging block, s. Should span at least ~10 samples so vibration averages out.
     pub block_s: f64,

@@ -1,6 +1,9 @@
 //! The daemon's TOML configuration (`config/vidslam.toml`). Unknown keys are errors; every error
 //! names the file, line and key.
 
+use super::odometry::BootstrapConfig;
+use crate::imu::static_init::StaticDetectorConfig;
+use crate::mapping::semidense::SemidenseConfig;
 use crate::tracking::TrackerConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -11,6 +14,12 @@ use std::path::Path;
 pub struct Config {
     /// `[tracking]`: the frame-rate visual-inertial tracker.
     pub tracking: TrackerConfig,
+    /// `[mapping]`: the semidense mapper.
+    pub mapping: SemidenseConfig,
+    /// `[static_detector]`: rest detection on the IMU.
+    pub static_detector: StaticDetectorConfig,
+    /// `[bootstrap]`: first map and loss recovery.
+    pub bootstrap: BootstrapConfig,
 }
 
 #[derive(Debug, thiserror::Error)]

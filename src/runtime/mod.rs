@@ -1,6 +1,8 @@
 //! Running the pipeline: offline replay of recorded datasets, its report, and the configuration.
 
 pub mod config;
+pub mod mapping_worker;
+pub mod odometry;
 pub mod replay;
 pub mod report;
 

@@ -1,11 +1,17 @@
 //! Offline replay of an ASL/EuRoC dataset through the tracker, frame by frame in file order
 //! (deterministic: the same input and configuration give a bit-identical trajectory).
 //!
-//! Keyframe depth comes from a [`DepthSource`]: the simulator's ground-truth depth maps
-//! (`mav0/depth0`) isolate tracking from mapping.
+//! Keyframe depth comes from a [`DepthSource`]: the semidense mapping thread (the product:
+//! [`super::odometry::Odometry`], started from rest or from the ground truth), or the simulator's
+//! ground-truth depth maps (`mav0/depth0`, starting from the ground truth), which isolate tracking
+//! from mapping.
 
+use super::mapping_worker::MappingOutput;
+use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, Phase, Rig};
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
+use crate::imu::static_init::StaticDetectorConfig;
 use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
+use crate::mapping::semidense::SemidenseConfig;
 use crate::time::TimeNs;
 use crate::tracking::{
     Keyframe, TrackResult, Tracker, TrackerConfig, depth_points_from_map, select_gradient_pixels,
@@ -16,7 +22,18 @@ use std::path::Path;
 /// Where keyframe depth comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DepthSource {
+    /// The semidense mapping thread (the full odometry).
+    Semidense,
     /// `mav0/depth0` ground-truth z-depth (simulator output).
+    GroundTruth,
+}
+
+/// How the full odometry gets its first state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StartMode {
+    /// Detect the vehicle at rest and start from it (the product's way).
+    Static,
+    /// The ground truth's state at the first frame (for sequences that start in motion).
     GroundTruth,
 }
 
@@ -24,7 +41,14 @@ pub enum DepthSource {
 #[derive(Clone, Debug)]
 pub struct ReplayOptions {
     pub tracker: TrackerConfig,
+    /// Mapping, rest detection and bootstrap settings of the full odometry.
+    pub mapping: SemidenseConfig,
+    pub static_detector: StaticDetectorConfig,
+    pub bootstrap: BootstrapConfig,
     pub depth: DepthSource,
+    pub start: StartMode,
+    /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
+    pub realtime: bool,
     /// Stop after this much data from the first tracked frame, s.
     pub max_seconds: Option<f64>,
     /// Initial standard deviations: position m, rotation rad, velocity m/s, gyro bias rad/s,
@@ -72,7 +96,12 @@ impl Default for ReplayOptions {
     fn default() -> Self {
         ReplayOptions {
             tracker: TrackerConfig::default(),
-            depth: DepthSource::GroundTruth,
+            mapping: SemidenseConfig::default(),
+            static_detector: StaticDetectorConfig::default(),
+            bootstrap: BootstrapConfig::default(),
+            depth: DepthSource::Semidense,
+            start: StartMode::Static,
+            realtime: false,
             max_seconds: None,
             initial_std: InitialStd::default(),
         }
@@ -91,8 +120,21 @@ pub enum ReplayError {
 /// What a replay produced, frame by frame.
 #[derive(Clone, Debug, Default)]
 pub struct ReplayOutput {
-    /// One result per tracked frame (the first frame's result is its start state).
+    /// One result per frame with a valid pose (the first frame's result is its start state).
     pub frames: Vec<TrackResult>,
+    /// The odometry phase of each of `frames`.
+    pub phases: Vec<Phase>,
+    /// Frames read before the first valid pose (no rest detected yet).
+    pub frames_waiting: usize,
+    /// Motion onset (back-dated) and first tracked frame after it.
+    pub onset_t: Option<TimeNs>,
+    pub tracking_since: Option<TimeNs>,
+    /// Re-initialisations after tracking loss.
+    pub resets: u32,
+    /// Mapper jobs dropped (real-time mode only).
+    pub jobs_dropped: usize,
+    /// What the mapping thread built (empty with ground-truth depth).
+    pub mapping: MappingOutput,
     /// Frames of the dataset inside the replayed span.
     pub frames_in: usize,
     /// Keyframes created.
@@ -104,6 +146,118 @@ pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
 
 /// Replays `dir` with `opts`; `progress` is called after every frame.
 pub fn replay(
+    dir: &Path,
+    opts: &ReplayOptions,
+    progress: Progress,
+) -> Result<ReplayOutput, ReplayError> {
+    match opts.depth {
+        DepthSource::GroundTruth => replay_gt_depth(dir, opts, progress),
+        DepthSource::Semidense => replay_full(dir, opts, progress),
+    }
+}
+
+/// The full odometry (semidense mapping thread, rest detection, bootstrap).
+fn replay_full(
+    dir: &Path,
+    opts: &ReplayOptions,
+    progress: Progress,
+) -> Result<ReplayOutput, ReplayError> {
+    let ds = AslDataset::open(dir)?;
+    let imu = read_imu_csv(&ds.mav0().join("imu0/data.csv"))?;
+    let frames: Vec<FrameRecord> = ds.frames()?.collect::<Result<_, _>>()?;
+    let Some(imu_first) = imu.first() else {
+        return Err(ReplayError::Input(format!(
+            "{}: no IMU samples",
+            ds.mav0().join("imu0/data.csv").display()
+        )));
+    };
+    let gt = match opts.start {
+        StartMode::GroundTruth => Some(ds.ground_truth()?.ok_or_else(|| {
+            ReplayError::Input(format!(
+                "{}: --start gt needs mav0/state_groundtruth_estimate0/data.csv",
+                ds.mav0().display()
+            ))
+        })?),
+        StartMode::Static => None,
+    };
+    let start = frames
+        .iter()
+        .position(|f| {
+            f.t > imu_first.t
+                && gt
+                    .as_ref()
+                    .is_none_or(|g| g.nearest(f.t, 5_000_000).is_some())
+        })
+        .ok_or_else(|| ReplayError::Input("no frame after the first IMU sample".into()))?;
+    let t0 = frames[start].t;
+    let end_t = opts
+        .max_seconds
+        .map(|s| t0.add_ns((s * 1e9).round() as i64))
+        .unwrap_or(TimeNs(i64::MAX));
+    let span: Vec<&FrameRecord> = frames[start..]
+        .iter()
+        .take_while(|f| f.t <= end_t && imu.last().is_some_and(|l| l.t >= f.t))
+        .collect();
+    let cfg = OdometryConfig {
+        tracking: opts.tracker.clone(),
+        mapping: opts.mapping.clone(),
+        static_detector: opts.static_detector.clone(),
+        bootstrap: opts.bootstrap.clone(),
+        realtime: opts.realtime,
+    };
+    let rig = Rig {
+        camera: ds.camera.model,
+        t_body_cam: ds.camera.t_body_cam,
+        noise: ds.imu.noise,
+    };
+    let mut odo = Odometry::new(cfg, rig);
+    if let Some(g) = &gt {
+        odo.set_start_state(start_state(g, t0)?, opts.initial_std.covariance());
+    }
+    let mut out = ReplayOutput {
+        frames_in: span.len(),
+        ..Default::default()
+    };
+    let mut next_imu = 0usize;
+    let wall0 = std::time::Instant::now();
+    for (k, rec) in span.iter().enumerate() {
+        while next_imu < imu.len() && imu[next_imu].t <= rec.t {
+            odo.push_imu(&imu[next_imu]);
+            next_imu += 1;
+        }
+        // One sample past the frame, so the interval end is interpolated, not extrapolated.
+        if next_imu < imu.len() {
+            odo.push_imu(&imu[next_imu]);
+            next_imu += 1;
+        }
+        let img = rec.load()?;
+        if opts.realtime {
+            let due = std::time::Duration::from_secs_f64(rec.t.secs_since(t0).max(0.0));
+            if let Some(wait) = due.checked_sub(wall0.elapsed()) {
+                std::thread::sleep(wait);
+            }
+        }
+        let f = odo.push_frame(rec.t, img);
+        if f.valid {
+            out.frames.push(f.result);
+            out.phases.push(f.phase);
+        } else {
+            out.frames_waiting += 1;
+        }
+        progress(k + 1, span.len());
+    }
+    let (stats, mapping) = odo.finish();
+    out.onset_t = stats.onset_t;
+    out.tracking_since = stats.tracking_since;
+    out.resets = stats.resets;
+    out.keyframes = stats.keyframes;
+    out.jobs_dropped = stats.jobs_dropped;
+    out.mapping = mapping;
+    Ok(out)
+}
+
+/// Tracking alone: keyframe depth and start state from the ground truth.
+fn replay_gt_depth(
     dir: &Path,
     opts: &ReplayOptions,
     progress: Progress,
@@ -170,12 +324,9 @@ pub fn replay(
         };
         let need_kf = k == 0 || result.wants_keyframe;
         out.frames.push(result);
+        out.phases.push(Phase::Tracking);
         if need_kf && opts.tracker.use_vision {
-            let kf = match opts.depth {
-                DepthSource::GroundTruth => {
-                    ground_truth_keyframe(&ds, &tracker, &cam, rec.t, next_kf_id)?
-                }
-            };
+            let kf = ground_truth_keyframe(&ds, &tracker, &cam, rec.t, next_kf_id)?;
             tracker.set_keyframe(kf);
             next_kf_id += 1;
             out.keyframes += 1;

@@ -1,12 +1,21 @@
 //! `report.json` of a replay: frame counts, tracking time percentiles and the `vidslam eval`
 //! figures against ground truth, as one flat JSON object with stable keys.
 
+use super::odometry::Phase;
 use super::replay::ReplayOutput;
 use crate::dataset::{StampedPose, Trajectory};
 use crate::eval::{EvalOptions, EvalReport, evaluate};
 use crate::tracking::pose_of;
 use serde::Serialize;
 use std::collections::BTreeMap;
+
+/// The scale error of the trajectory from its start up to `t_s`.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ScaleAt {
+    /// Seconds since the first pose.
+    pub t_s: f64,
+    pub scale_error_pct: f64,
+}
 
 /// The replay's own figures (the evaluation's are merged in by [`ReplayReport::to_json`]).
 #[derive(Clone, Debug, Serialize)]
@@ -29,6 +38,23 @@ pub struct ReplayReport {
     pub duration_s: f64,
     pub vision: bool,
     pub depth: String,
+    /// Frames read before the first valid pose (rest not yet detected).
+    pub frames_waiting: usize,
+    /// Frames per odometry phase (static, initializing, tracking, lost).
+    pub phases: BTreeMap<String, usize>,
+    /// From the (back-dated) motion onset to the first frame tracked against a map, s.
+    pub init_time_s: Option<f64>,
+    /// Re-initialisations after tracking loss.
+    pub resets: u32,
+    /// Mapper jobs dropped (real-time mode).
+    pub mapping_jobs_dropped: usize,
+    /// Mapping-thread time per job, ms.
+    pub mapping_ms_p50: f64,
+    pub mapping_ms_p99: f64,
+    /// Semidense points over all keyframes.
+    pub semidense_points: usize,
+    /// Sim3 scale error of the trajectory up to each time (from the first pose), %.
+    pub scale_error_over_time: Vec<ScaleAt>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -36,16 +62,23 @@ pub struct ReplayReport {
 
 impl ReplayReport {
     pub fn new(out: &ReplayOutput, vision: bool, depth: &str) -> Self {
-        let tracked: Vec<_> = out.frames.iter().skip(1).collect();
+        let tracked: Vec<_> = out
+            .frames
+            .iter()
+            .zip(&out.phases)
+            .skip(1)
+            .filter(|(_, p)| **p == Phase::Tracking)
+            .map(|(r, _)| r)
+            .collect();
         let mut ms: Vec<f64> = tracked.iter().map(|r| r.time_s * 1e3).collect();
         ms.sort_by(f64::total_cmp);
-        let pct = |p: f64| -> f64 {
-            if ms.is_empty() {
-                return 0.0;
-            }
-            let i = ((p / 100.0) * (ms.len() - 1) as f64).round() as usize;
-            ms[i.min(ms.len() - 1)]
-        };
+        let pct = |p: f64| percentile(&ms, p);
+        let mut map_ms: Vec<f64> = out.mapping.job_times_s.iter().map(|t| t * 1e3).collect();
+        map_ms.sort_by(f64::total_cmp);
+        let mut phases = BTreeMap::new();
+        for p in &out.phases {
+            *phases.entry(p.as_str().to_string()).or_insert(0) += 1;
+        }
         let mut flags = BTreeMap::new();
         for r in &out.frames {
             if let Some(f) = r.flag {
@@ -93,13 +126,50 @@ impl ReplayReport {
             duration_s,
             vision,
             depth: depth.to_string(),
+            frames_waiting: out.frames_waiting,
+            phases,
+            init_time_s: match (out.onset_t, out.tracking_since) {
+                (Some(a), Some(b)) => Some(b.secs_since(a)),
+                _ => None,
+            },
+            resets: out.resets,
+            mapping_jobs_dropped: out.jobs_dropped,
+            mapping_ms_p50: percentile(&map_ms, 50.0),
+            mapping_ms_p99: percentile(&map_ms, 99.0),
+            semidense_points: out
+                .mapping
+                .keyframe_maps
+                .iter()
+                .map(|m| m.points.len())
+                .sum(),
+            scale_error_over_time: Vec::new(),
             eval: None,
         }
     }
 
-    /// Evaluates `est` against `gt` with SE3 alignment (metric: no scale fix).
+    /// Evaluates `est` against `gt` with SE3 alignment (metric: no scale fix), and the scale
+    /// error of the trajectory up to every 10 s.
     pub fn evaluate_against(&mut self, gt: &Trajectory, est: &Trajectory) {
         self.eval = evaluate(gt, est, &EvalOptions::default()).ok();
+        self.scale_error_over_time.clear();
+        let Some((t0, t1)) = est.span() else { return };
+        let mut t = 10.0;
+        loop {
+            let end = t0.add_ns((t * 1e9) as i64).min(t1);
+            let part = Trajectory::new(est.poses.iter().filter(|p| p.t <= end).copied().collect());
+            if let Ok(e) = evaluate(gt, &part, &EvalOptions::default())
+                && e.gt_path_m > 1.0
+            {
+                self.scale_error_over_time.push(ScaleAt {
+                    t_s: end.secs_since(t0),
+                    scale_error_pct: e.scale_error_pct,
+                });
+            }
+            if end >= t1 {
+                break;
+            }
+            t += 10.0;
+        }
     }
 
     /// One flat JSON object: these fields plus every key of the evaluation (`ate_rmse_m`,
@@ -143,6 +213,25 @@ impl ReplayReport {
             format!("{:.1}", self.iterations_mean),
         );
         row("non-finite poses", self.non_finite_poses.to_string());
+        if !self.phases.is_empty() {
+            row("phases (frames)", format!("{:?}", self.phases));
+        }
+        if self.frames_waiting > 0 {
+            row("frames before rest", self.frames_waiting.to_string());
+        }
+        if let Some(s) = self.init_time_s {
+            row("init after onset", format!("{s:.2} s"));
+        }
+        row("resets", self.resets.to_string());
+        if self.semidense_points > 0 {
+            row(
+                "semidense",
+                format!(
+                    "{} points, mapping ms p50/p99 {:.1} / {:.1}",
+                    self.semidense_points, self.mapping_ms_p50, self.mapping_ms_p99
+                ),
+            );
+        }
         if let Some(e) = &self.eval {
             row("ATE RMSE (SE3)", format!("{:.4} m", e.ate_rmse_m));
             row("ATE max", format!("{:.4} m", e.ate_max_m));
@@ -171,6 +260,30 @@ impl ReplayReport {
     }
 }
 
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    let i = ((p / 100.0) * (sorted.len() - 1) as f64).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+/// Writes points as an ASCII PLY (x y z in m).
+pub fn write_ply(path: &std::path::Path, points: &[nalgebra::Point3<f64>]) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
+    writeln!(
+        w,
+        "ply\nformat ascii 1.0\ncomment vidslam semidense map, world frame, metres\n\
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header",
+        points.len()
+    )?;
+    for p in points {
+        writeln!(w, "{:.4} {:.4} {:.4}", p.x, p.y, p.z)?;
+    }
+    w.flush()
+}
+
 /// The estimated trajectory (body in the world) of a replay.
 pub fn trajectory(out: &ReplayOutput) -> Trajectory {
     Trajectory::new(
@@ -188,17 +301,18 @@ pub fn trajectory(out: &ReplayOutput) -> Trajectory {
 /// overlap, residual RMS, IMU χ², keyframe, tracking time, position, velocity and biases.
 pub fn frames_csv(out: &ReplayOutput) -> String {
     let mut s = String::from(
-        "t_ns,flag,iters_l0,iters_l1,iters_l2,iters_l3,inlier_ratio,overlap,residual_rms_gray,\
+        "t_ns,phase,flag,iters_l0,iters_l1,iters_l2,iters_l3,inlier_ratio,overlap,residual_rms_gray,\
          imu_chi2,keyframe_id,new_keyframe,tracking_ms,px_m,py_m,pz_m,vx_m_s,vy_m_s,vz_m_s,\
          bgx_rad_s,bgy_rad_s,bgz_rad_s,bax_m_s2,bay_m_s2,baz_m_s2,log_gain,offset_gray\n",
     );
-    for r in &out.frames {
+    for (r, ph) in out.frames.iter().zip(&out.phases) {
         let n = &r.state.nav;
         let b = &r.state.bias;
         s.push_str(&format!(
-            "{},{},{},{},{},{},{:.4},{:.4},{:.3},{:.3},{},{},{:.3},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},\
+            "{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{:.3},{},{},{:.3},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},\
              {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3}\n",
             r.t.0,
+            ph.as_str(),
             r.flag.map_or("", |f| f.as_str()),
             r.iterations[0],
             r.iterations[1],

@@ -34,6 +34,8 @@ pub struct TrackerConfig {
     /// Photometric information is divided by this (residuals of neighbouring pixels are not
     /// independent; 1 = treat them as independent).
     pub photometric_correlation: f64,
+    /// Gradient weighting `c² / (c² + |∇I|²)` of each point, gray levels per pixel (0 = off).
+    pub gradient_weight_gray_px: f32,
     /// Points closer to the image border than this are not used, pixels of the level.
     pub border_px: f64,
     /// Prior standard deviation of the log-gain of the affine brightness model, relative to the
@@ -71,6 +73,7 @@ impl Default for TrackerConfig {
             outlier_gray: 40.0,
             min_sigma_gray: 2.0,
             photometric_correlation: 1.0,
+            gradient_weight_gray_px: 0.0,
             border_px: 2.0,
             affine_gain_prior_std: 0.3,
             affine_offset_prior_std_gray: 30.0,

@@ -30,6 +30,10 @@ pub struct LevelPoints {
     /// `d I_i(π(exp(ε) p)) / dε` at `ε = 0` for the twist `ε = [ω, v]` (eq. 26: image gradient ·
     /// projection Jacobian · point Jacobian), gray levels per unit twist.
     pub jacobian: Vec<[f32; 6]>,
+    /// Prior weight of the point: `c² / (c² + |∇I|²)` with `c = gradient_weight_gray_px`. A
+    /// residual's variance grows with the gradient times the geometric error (depth and pose), so
+    /// strong edges count less (as in DSO); 1 when the term is disabled.
+    pub weight: Vec<f32>,
 }
 
 impl LevelPoints {
@@ -97,6 +101,7 @@ impl Keyframe {
                 cfg.level_cell_px[li],
                 cfg.max_points_per_level[li],
                 cfg.border_px,
+                cfg.gradient_weight_gray_px,
             ));
         }
         Keyframe {
@@ -124,6 +129,7 @@ fn build_level(
     cell_px: usize,
     max_points: usize,
     border_px: f64,
+    gradient_weight_c: f32,
 ) -> LevelPoints {
     let img = pyr.level(level);
     let (gx, gy) = pyr.gradients(level);
@@ -157,6 +163,7 @@ fn build_level(
         p_kf_m: Vec::with_capacity(chosen.len()),
         intensity: Vec::with_capacity(chosen.len()),
         jacobian: Vec::with_capacity(chosen.len()),
+        weight: Vec::with_capacity(chosen.len()),
     };
     for (_, i, u, v) in chosen {
         let p = points[i];
@@ -174,6 +181,12 @@ fn build_level(
         out.intensity.push(val);
         out.jacobian
             .push([j[0], j[1], j[2], j[3], j[4], j[5]].map(|x| x as f32));
+        let c2 = gradient_weight_c * gradient_weight_c;
+        out.weight.push(if c2 > 0.0 {
+            c2 / (c2 + dx * dx + dy * dy)
+        } else {
+            1.0
+        });
     }
     out
 }

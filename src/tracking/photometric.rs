@@ -110,11 +110,12 @@ pub fn accumulate(
     let (mut valid, mut inliers) = (0usize, 0usize);
     let mut sum_sq = 0.0f64;
     let invalid_cost = robust.invalid_cost() as f64;
-    for ((p, &i_ref), jac) in level
+    for (((p, &i_ref), jac), &prior_w) in level
         .p_kf_m
         .iter()
         .zip(&level.intensity)
         .zip(&level.jacobian)
+        .zip(&level.weight)
     {
         let pk = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
         let q = r * pk + t;
@@ -134,7 +135,8 @@ pub fn accumulate(
         let res = i_cur - (gain_f * i_ref + offset_f);
         abs_residuals.push(res.abs());
         let (rho, w) = robust.cost_weight(res);
-        cost += rho as f64;
+        let w = w * prior_w;
+        cost += (rho * prior_w) as f64;
         if w == 0.0 {
             continue;
         }

@@ -181,11 +181,14 @@ impl Tracker {
         self.cov = cov;
     }
 
-    /// Makes `kf` the keyframe tracked against; brightness is then relative to it.
+    /// Makes `kf` the keyframe tracked against; brightness is then relative to it (a refreshed
+    /// map of the same keyframe keeps the brightness estimate).
     pub fn set_keyframe(&mut self, kf: Keyframe) {
+        if self.keyframe.as_ref().map(|k| k.id) != Some(kf.id) {
+            self.log_gain = 0.0;
+            self.offset_gray = 0.0;
+        }
         self.keyframe = Some(kf);
-        self.log_gain = 0.0;
-        self.offset_gray = 0.0;
     }
 
     /// Drops the keyframe (tracking loss): frames are IMU-only until a new one is set.

@@ -80,7 +80,8 @@ use nalgebra::Isometry3;
 
 /// Tuning of the semidense mapper. Pixel and gray-level thresholds are for full-resolution 8-bit
 /// images (gray levels 0..255).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SemidenseConfig {
     /// A pixel is a candidate if its central-difference gradient magnitude reaches this, gray
     /// levels per pixel.

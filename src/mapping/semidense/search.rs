@@ -277,7 +277,10 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
 
     // Epipolar scan: 1-px steps along the curve, exact at knots, 5-sample zero-mean SSD.
     let (vd, vs) = (ctx.image.data(), ctx.image.stride());
-    let (x_lim, y_lim) = ((ctx.image.width() - 1) as f32, (ctx.image.height() - 1) as f32);
+    let (x_lim, y_lim) = (
+        (ctx.image.width() - 1) as f32,
+        (ctx.image.height() - 1) as f32,
+    );
     let pix = |s: f64| {
         let u = to_pixel(cam, &n_at(s)).0;
         [u.x as f32, u.y as f32]

@@ -1,0 +1,235 @@
+//! The semidense mapping thread (section IV-A): it owns the keyframe under construction and turns
+//! jobs from the tracking thread into immutable map snapshots.
+//!
+//! Tracking and mapping are joined by two bounded crossbeam channels (jobs in, snapshots out).
+//! A snapshot is an `Arc`: the tracking thread swaps it in without a lock and never waits in
+//! real-time mode (it drops jobs when the queue is full and drains snapshots with `try_recv`).
+//! In offline mode it waits for the snapshot of each job at a fixed frame lag, which makes a replay
+//! deterministic. The dense (superpixel) thread of section IV-B will hang off the same snapshots:
+//! [`MappingOutput::keyframe_maps`] is what it will consume.
+
+use crate::camera::CameraModel;
+use crate::image::Image;
+use crate::mapping::semidense::{SemidenseConfig, SemidenseKeyframe, SemidenseMap};
+use crate::time::TimeNs;
+use crossbeam_channel::{Receiver, Sender, bounded};
+use nalgebra::{Isometry3, Point3};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+/// A frame handed to the mapper: image and camera pose (from tracking or the IMU).
+#[derive(Clone, Debug)]
+pub struct MapFrame {
+    pub t: TimeNs,
+    pub image: Arc<Image<u8>>,
+    pub t_world_cam: Isometry3<f64>,
+}
+
+/// Work for the mapping thread. Every job produces exactly one [`MapSnapshot`] with its `seq`.
+#[derive(Clone, Debug)]
+pub enum MapJob {
+    /// Start keyframe `id` at `frame`: propagate the previous keyframe's map into it (if
+    /// `propagate`), then observe `history` (earlier frames, newest first).
+    NewKeyframe {
+        seq: u64,
+        id: u32,
+        frame: MapFrame,
+        history: Vec<MapFrame>,
+        propagate: bool,
+        /// Search range of inverse depth, 1/m (`None`: the configured one).
+        inv_depth_range_m_inv: Option<(f64, f64)>,
+    },
+    /// Another view of the current keyframe.
+    Observe { seq: u64, frame: MapFrame },
+}
+
+impl MapJob {
+    pub fn seq(&self) -> u64 {
+        match self {
+            MapJob::NewKeyframe { seq, .. } | MapJob::Observe { seq, .. } => *seq,
+        }
+    }
+}
+
+/// The current keyframe's map after a job.
+#[derive(Clone, Debug)]
+pub struct MapSnapshot {
+    pub seq: u64,
+    pub keyframe_id: u32,
+    pub keyframe_t: TimeNs,
+    pub keyframe_image: Arc<Image<u8>>,
+    pub map: Arc<SemidenseMap>,
+    /// Views observed by this keyframe so far.
+    pub views: usize,
+    /// Of these, views after the keyframe.
+    pub forward_views: usize,
+    /// Time the job took, s.
+    pub time_s: f64,
+}
+
+/// What the mapping thread leaves behind when its job queue closes.
+#[derive(Clone, Debug, Default)]
+pub struct MappingOutput {
+    /// Every keyframe's last map, in order.
+    pub keyframe_maps: Vec<Arc<SemidenseMap>>,
+    /// Time per job, s.
+    pub job_times_s: Vec<f64>,
+}
+
+impl MappingOutput {
+    /// All map points in the world frame, m.
+    pub fn world_points(&self) -> Vec<Point3<f64>> {
+        let mut out = Vec::new();
+        for m in &self.keyframe_maps {
+            for p in &m.points {
+                let Some(ray) = m
+                    .camera
+                    .unproject(&nalgebra::Vector2::new(p.u_px as f64, p.v_px as f64))
+                else {
+                    continue;
+                };
+                out.push(m.t_world_cam * Point3::from(ray / p.inv_depth_m_inv as f64));
+            }
+        }
+        out
+    }
+}
+
+/// Handle of a running mapping thread.
+pub struct MappingThread {
+    pub jobs: Sender<MapJob>,
+    pub snapshots: Receiver<MapSnapshot>,
+    join: JoinHandle<MappingOutput>,
+}
+
+impl MappingThread {
+    /// Starts the thread; queues hold `queue_len` jobs / snapshots.
+    pub fn spawn(cfg: SemidenseConfig, camera: CameraModel, queue_len: usize) -> Self {
+        let (jtx, jrx) = bounded::<MapJob>(queue_len);
+        let (stx, srx) = bounded::<MapSnapshot>(queue_len);
+        let join = std::thread::Builder::new()
+            .name("vidslam-mapping".into())
+            .spawn(move || run(cfg, camera, jrx, stx))
+            .expect("spawn the mapping thread");
+        MappingThread {
+            jobs: jtx,
+            snapshots: srx,
+            join,
+        }
+    }
+
+    /// Closes the job queue and waits for the thread's output.
+    pub fn finish(self) -> MappingOutput {
+        drop(self.jobs);
+        // Drain so that a thread blocked on a full snapshot queue can finish.
+        let rx = self.snapshots;
+        let drain = std::thread::spawn(move || while rx.recv().is_ok() {});
+        let out = self.join.join().unwrap_or_default();
+        let _ = drain.join();
+        out
+    }
+}
+
+struct Current {
+    id: u32,
+    t: TimeNs,
+    image: Arc<Image<u8>>,
+    kf: SemidenseKeyframe,
+    views: usize,
+    forward_views: usize,
+}
+
+fn run(
+    cfg: SemidenseConfig,
+    camera: CameraModel,
+    jobs: Receiver<MapJob>,
+    snapshots: Sender<MapSnapshot>,
+) -> MappingOutput {
+    let mut out = MappingOutput::default();
+    let mut cur: Option<Current> = None;
+    let mut scratch = Image::<f32>::new(camera.width, camera.height);
+    for job in jobs.iter() {
+        let started = Instant::now();
+        let seq = job.seq();
+        match job {
+            MapJob::NewKeyframe {
+                id,
+                frame,
+                history,
+                propagate,
+                inv_depth_range_m_inv,
+                ..
+            } => {
+                let previous = cur.take().map(|c| {
+                    let m = Arc::new(c.kf.map());
+                    out.keyframe_maps.push(m.clone());
+                    m
+                });
+                to_f32(&frame.image, &mut scratch);
+                let mut kf = SemidenseKeyframe::new(&scratch, &camera, &frame.t_world_cam, &cfg);
+                if let Some((lo, hi)) = inv_depth_range_m_inv {
+                    kf.set_inv_depth_range(lo, hi);
+                }
+                if propagate && let Some(prev) = &previous {
+                    kf.propagate_from(prev);
+                }
+                let mut views = 0;
+                for h in &history {
+                    to_f32(&h.image, &mut scratch);
+                    kf.observe(&scratch, &h.t_world_cam);
+                    views += 1;
+                }
+                cur = Some(Current {
+                    id,
+                    t: frame.t,
+                    image: frame.image,
+                    kf,
+                    views,
+                    forward_views: 0,
+                });
+            }
+            MapJob::Observe { frame, .. } => {
+                if let Some(c) = cur.as_mut() {
+                    to_f32(&frame.image, &mut scratch);
+                    c.kf.observe(&scratch, &frame.t_world_cam);
+                    c.views += 1;
+                    if frame.t > c.t {
+                        c.forward_views += 1;
+                    }
+                }
+            }
+        }
+        let time_s = started.elapsed().as_secs_f64();
+        out.job_times_s.push(time_s);
+        let Some(c) = cur.as_ref() else { continue };
+        let snap = MapSnapshot {
+            seq,
+            keyframe_id: c.id,
+            keyframe_t: c.t,
+            keyframe_image: c.image.clone(),
+            map: Arc::new(c.kf.map()),
+            views: c.views,
+            forward_views: c.forward_views,
+            time_s,
+        };
+        if snapshots.send(snap).is_err() {
+            break;
+        }
+    }
+    if let Some(c) = cur {
+        out.keyframe_maps.push(Arc::new(c.kf.map()));
+    }
+    out
+}
+
+fn to_f32(src: &Image<u8>, dst: &mut Image<f32>) {
+    if (dst.width(), dst.height()) != (src.width(), src.height()) {
+        dst.resize(src.width(), src.height());
+    }
+    for y in 0..src.height() {
+        for (d, s) in dst.row_mut(y).iter_mut().zip(src.row(y)) {
+            *d = *s as f32;
+        }
+    }
+}

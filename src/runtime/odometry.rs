@@ -1,0 +1,637 @@
+//! The complete odometry: static start, metric bootstrap, tracking against semidense keyframes
+//! built by the mapping thread, and recovery from tracking loss.
+//!
+//! # Phases
+//! * [`Phase::WaitingForStart`]: no IMU window yet (no pose is published).
+//! * [`Phase::Static`]: the IMU says the vehicle rests ([`StaticDetector`]). The pose is held at
+//!   the origin with the attitude from gravity and the gyro bias from the rest period: a valid,
+//!   drift-free pose from the first frames, with no "excitation" needed.
+//! * [`Phase::Initializing`]: motion began. The last static frame becomes the first keyframe and
+//!   the following frames, posed by IMU integration from the known rest state, are given to the
+//!   semidense mapper: the first map's depths come from an IMU-measured baseline, so they are
+//!   metric (the paper's bootstrap, section III-D end). Poses meanwhile are IMU-only.
+//! * [`Phase::Tracking`]: the first map has enough points; every frame is tracked against the
+//!   newest keyframe (joint visual-inertial, [`Tracker`]). When the tracker asks for a keyframe
+//!   the current frame starts one (seeded by propagating the previous map and by the last few
+//!   frames); otherwise the frame refines the current keyframe's depths.
+//! * [`Phase::Lost`]: several consecutive frames had too few photometric inliers (covered lens,
+//!   dark). Poses are IMU-only; as soon as the image has texture again a new keyframe is started
+//!   as in the bootstrap, and the reset is counted.
+//!
+//! # Determinism
+//! In offline mode every job's snapshot is awaited at the next frame (a lag of one frame), so a
+//! replay gives the same poses every time. In real-time mode the tracking thread never waits: jobs
+//! that do not fit the queue are dropped and snapshots are taken when they arrive.
+
+use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
+use crate::camera::CameraModel;
+use crate::image::{Image, Pyramid};
+use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEvent};
+use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
+use crate::mapping::semidense::SemidenseConfig;
+use crate::time::TimeNs;
+use crate::tracking::{
+    DepthPoint, FlagReason, Keyframe, NUM_LEVELS, TrackResult, Tracker, TrackerConfig,
+    select_gradient_pixels,
+};
+use nalgebra::{Isometry3, Vector3};
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+/// Static frames remembered to pick the first keyframe before the back-dated motion onset.
+const STATIC_FRAMES_KEPT: usize = 16;
+
+/// Bootstrap and loss-recovery settings (the `[bootstrap]` table).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BootstrapConfig {
+    /// The first keyframe is tracked once its map has this many points.
+    pub min_initial_points: usize,
+    /// A later keyframe replaces the current one once its map has this many points…
+    pub min_keyframe_points: usize,
+    /// …and it has been observed by this many frames after it (tracked against the previous
+    /// keyframe), so that it is triangulated with forward parallax before anything is tracked
+    /// against it.
+    pub min_keyframe_forward_views: usize,
+    /// The first keyframe is tracked only once the camera has moved this fraction of the map's
+    /// median depth from it (the IMU-measured baseline that makes the first depths metric).
+    pub min_init_baseline_ratio: f64,
+    /// IMU integration restarts this long before the detector's back-dated onset: the detector
+    /// dates the onset where the motion became detectable, and integrating a little rest costs
+    /// nothing, s.
+    pub onset_margin_s: f64,
+    /// If the first map is not ready this long after motion onset, restart it at the current
+    /// frame, s.
+    pub max_init_s: f64,
+    /// Inverse-depth search range of a keyframe started without a previous map, 1/m.
+    pub init_inv_depth_min_m_inv: f64,
+    pub init_inv_depth_max_m_inv: f64,
+    /// Frames before a new keyframe given to the mapper with it.
+    pub history_frames: usize,
+    /// Consecutive frames with too few inliers before tracking is declared lost.
+    pub lost_after_frames: u32,
+    /// A lost tracker restarts when the image has at least this many gradient points.
+    pub min_texture_points: usize,
+    /// Rebuild the tracking keyframe from a refined map at most every this many frames.
+    pub refresh_every_frames: u32,
+    /// Queue length of the mapping thread's job and snapshot channels.
+    pub queue_len: usize,
+    /// Seed each new keyframe with the previous keyframe's map (DPPTAM's propagation).
+    pub propagate_maps: bool,
+}
+
+impl Default for BootstrapConfig {
+    fn default() -> Self {
+        BootstrapConfig {
+            min_initial_points: 1500,
+            min_keyframe_points: 500,
+            min_keyframe_forward_views: 3,
+            max_init_s: 3.0,
+            min_init_baseline_ratio: 0.1,
+            onset_margin_s: 0.3,
+            init_inv_depth_min_m_inv: 0.05,
+            init_inv_depth_max_m_inv: 4.0,
+            history_frames: 5,
+            lost_after_frames: 3,
+            min_texture_points: 1500,
+            refresh_every_frames: 2,
+            queue_len: 8,
+            propagate_maps: true,
+        }
+    }
+}
+
+/// What the odometry is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    WaitingForStart,
+    Static,
+    Initializing,
+    Tracking,
+    Lost,
+}
+
+impl Phase {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Phase::WaitingForStart => "waiting",
+            Phase::Static => "static",
+            Phase::Initializing => "initializing",
+            Phase::Tracking => "tracking",
+            Phase::Lost => "lost",
+        }
+    }
+}
+
+/// One frame's output.
+#[derive(Clone, Debug)]
+pub struct OdometryFrame {
+    pub result: TrackResult,
+    pub phase: Phase,
+    /// The pose may be sent to the flight controller (false only while waiting for the start).
+    pub valid: bool,
+    /// Incremented at every re-initialisation after a loss (MAVLink `reset_counter`).
+    pub resets: u32,
+}
+
+/// Sensor description the odometry needs.
+#[derive(Clone, Debug)]
+pub struct Rig {
+    pub camera: CameraModel,
+    pub t_body_cam: Isometry3<f64>,
+    pub noise: ImuNoise,
+}
+
+/// Every setting of the odometry.
+#[derive(Clone, Debug, Default)]
+pub struct OdometryConfig {
+    pub tracking: TrackerConfig,
+    pub mapping: SemidenseConfig,
+    pub static_detector: StaticDetectorConfig,
+    pub bootstrap: BootstrapConfig,
+    /// Real-time mode: never wait for the mapper (non-deterministic).
+    pub realtime: bool,
+}
+
+/// Counters for the report.
+#[derive(Clone, Debug, Default)]
+pub struct OdometryStats {
+    /// Back-dated motion onset of the first take-off.
+    pub onset_t: Option<TimeNs>,
+    /// Time of the first tracked frame after the onset.
+    pub tracking_since: Option<TimeNs>,
+    pub resets: u32,
+    pub keyframes: usize,
+    pub jobs_dropped: usize,
+    pub imu_rejected: u64,
+}
+
+/// The odometry of one camera + IMU rig.
+pub struct Odometry {
+    cfg: OdometryConfig,
+    rig: Rig,
+    tracker: Tracker,
+    detector: StaticDetector,
+    mapping: Option<MappingThread>,
+    imu: VecDeque<ImuSample>,
+    imu_scratch: Vec<ImuSample>,
+    phase: Phase,
+    last_t: Option<TimeNs>,
+    seq: u64,
+    awaited: Option<u64>,
+    tracking_kf: Option<u32>,
+    newest_kf: Option<u32>,
+    next_kf_id: u32,
+    frames_since_refresh: u32,
+    tracking_kf_points: usize,
+    history: VecDeque<MapFrame>,
+    /// The last static frames (held at the rest pose), newest last.
+    static_frames: VecDeque<MapFrame>,
+    init_started: Option<TimeNs>,
+    consecutive_flagged: u32,
+    stats: OdometryStats,
+}
+
+impl Odometry {
+    pub fn new(cfg: OdometryConfig, rig: Rig) -> Self {
+        let tracker = Tracker::new(
+            cfg.tracking.clone(),
+            &rig.camera,
+            rig.t_body_cam,
+            rig.noise,
+            rest_state(TimeNs(0), Default::default(), Default::default()),
+            Matrix15::identity(),
+        );
+        let detector = StaticDetector::new(cfg.static_detector.clone(), &rig.noise);
+        let mapping = MappingThread::spawn(
+            cfg.mapping.clone(),
+            rig.camera,
+            cfg.bootstrap.queue_len.max(1),
+        );
+        Odometry {
+            tracker,
+            detector,
+            mapping: Some(mapping),
+            imu: VecDeque::with_capacity(4096),
+            imu_scratch: Vec::with_capacity(4096),
+            phase: Phase::WaitingForStart,
+            last_t: None,
+            seq: 0,
+            awaited: None,
+            tracking_kf: None,
+            newest_kf: None,
+            next_kf_id: 0,
+            frames_since_refresh: 0,
+            tracking_kf_points: 0,
+            history: VecDeque::new(),
+            static_frames: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
+            init_started: None,
+            consecutive_flagged: 0,
+            stats: OdometryStats::default(),
+            cfg,
+            rig,
+        }
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+    pub fn stats(&self) -> &OdometryStats {
+        &self.stats
+    }
+
+    /// Starts from a known state (e.g. ground truth) instead of a detected rest: the next frame
+    /// starts the first keyframe, posed by this state.
+    pub fn set_start_state(&mut self, x: FrameState, cov: Matrix15) {
+        self.tracker.reset_state(x, cov);
+        self.last_t = Some(x.nav.t);
+        self.phase = Phase::Initializing;
+        self.init_started = Some(x.nav.t);
+        if self.stats.onset_t.is_none() {
+            self.stats.onset_t = Some(x.nav.t);
+        }
+    }
+
+    /// Feeds one IMU sample (time ordered).
+    pub fn push_imu(&mut self, s: &ImuSample) {
+        if let Some(StaticEvent::MotionOnset(o)) = self.detector.push(s)
+            && self.stats.onset_t.is_none()
+        {
+            self.stats.onset_t = Some(o.t_onset);
+        }
+        self.imu.push_back(*s);
+        // Keep ~10 s: enough for any frame gap.
+        while self.imu.len() > 2000 {
+            self.imu.pop_front();
+        }
+    }
+
+    /// Processes the frame at `t` (all IMU samples up to at least `t` pushed first).
+    pub fn push_frame(&mut self, t: TimeNs, image: Image<u8>) -> OdometryFrame {
+        self.collect_snapshots();
+        let image = Arc::new(image);
+        let static_now = self.detector.is_static();
+        let mut result = match self.phase {
+            Phase::WaitingForStart | Phase::Static if static_now => self.hold_static(t, &image),
+            Phase::WaitingForStart => {
+                self.tracker.load_frame(&image);
+                self.last_t = Some(t);
+                let r = self.imu_only_result(t);
+                return OdometryFrame {
+                    result: r,
+                    phase: Phase::WaitingForStart,
+                    valid: false,
+                    resets: self.stats.resets,
+                };
+            }
+            Phase::Static => {
+                // Motion began at the (back-dated) onset: integrate the IMU from the rest state
+                // there, and make the last frame still at rest the first keyframe.
+                if let Some(o) = self.detector.last_onset().copied() {
+                    let margin_ns = (self.cfg.bootstrap.onset_margin_s * 1e9) as i64;
+                    let t_rest = o.t_onset.add_ns(-margin_ns).max(o.estimate.t_start);
+                    let mut x = *self.tracker.state();
+                    x.nav.t = t_rest;
+                    let cov = *self.tracker.covariance();
+                    self.tracker.reset_state(x, cov);
+                    if self.last_t.is_some_and(|lt| lt > t_rest) {
+                        self.last_t = Some(t_rest);
+                    }
+                    while self.static_frames.len() > 1
+                        && self.static_frames.back().is_some_and(|f| f.t > t_rest)
+                    {
+                        self.static_frames.pop_back();
+                    }
+                }
+                if let Some(kf) = self.static_frames.pop_back() {
+                    self.start_keyframe(kf, Vec::new(), false);
+                }
+                self.static_frames.clear();
+                self.phase = Phase::Initializing;
+                self.init_started = Some(t);
+                self.track(t, &image)
+            }
+            Phase::Initializing | Phase::Tracking | Phase::Lost => self.track(t, &image),
+        };
+        // Phase transitions and jobs after tracking.
+        let frame = MapFrame {
+            t,
+            image: image.clone(),
+            t_world_cam: self.tracker.t_world_cam(),
+        };
+        match self.phase {
+            Phase::Static | Phase::WaitingForStart => {}
+            Phase::Initializing => {
+                result.flag = None; // IMU-only while the first map grows: expected, not a failure
+                let started = self.init_started.unwrap_or(t);
+                if self.newest_kf.is_none() || t.secs_since(started) > self.cfg.bootstrap.max_init_s
+                {
+                    // Not enough structure yet: restart the first map from here.
+                    self.start_keyframe(frame.clone(), Vec::new(), false);
+                    self.init_started = Some(t);
+                } else {
+                    self.observe(frame.clone());
+                }
+            }
+            Phase::Tracking => {
+                if result.flag == Some(FlagReason::FewInliers) {
+                    self.consecutive_flagged += 1;
+                } else {
+                    self.consecutive_flagged = 0;
+                }
+                if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
+                    self.phase = Phase::Lost;
+                    self.tracker.clear_keyframe();
+                    self.tracking_kf = None;
+                    self.history.clear();
+                    self.stats.resets += 1;
+                } else if result.wants_keyframe
+                    && result.flag.is_none()
+                    && self.newest_kf == self.tracking_kf
+                {
+                    // (A keyframe already pending in the mapper is awaited, not replaced.)
+                    let history: Vec<MapFrame> = self.history.iter().cloned().collect();
+                    let propagate = self.cfg.bootstrap.propagate_maps;
+                    self.start_keyframe(frame.clone(), history, propagate);
+                } else if result.flag.is_none() {
+                    self.observe(frame.clone());
+                }
+            }
+            Phase::Lost => {
+                let textured =
+                    select_gradient_pixels(self.tracker.frame_pyramid(), &self.cfg.tracking).len();
+                if textured >= self.cfg.bootstrap.min_texture_points {
+                    self.start_keyframe(frame.clone(), Vec::new(), false);
+                    self.phase = Phase::Initializing;
+                    self.init_started = Some(t);
+                }
+            }
+        }
+        if self.phase == Phase::Tracking && result.flag.is_none() {
+            self.history.push_front(frame);
+            self.history.truncate(self.cfg.bootstrap.history_frames);
+        }
+        self.frames_since_refresh += 1;
+        OdometryFrame {
+            result,
+            phase: self.phase,
+            valid: true,
+            resets: self.stats.resets,
+        }
+    }
+
+    /// Stops the mapping thread and returns what it built.
+    pub fn finish(mut self) -> (OdometryStats, MappingOutput) {
+        let out = self
+            .mapping
+            .take()
+            .map(MappingThread::finish)
+            .unwrap_or_default();
+        (self.stats.clone(), out)
+    }
+
+    fn hold_static(&mut self, t: TimeNs, image: &Arc<Image<u8>>) -> TrackResult {
+        let est = self.detector.estimate().copied();
+        let x = match est {
+            Some(e) => {
+                let mut x = rest_state(t, e.r_world_body, e.imu_bias().gyro_rad_s);
+                // At rest the accelerometer bias along gravity shows as the excess of the mean
+                // specific force over g; across gravity it is absorbed in the tilt. Taking both
+                // makes IMU dead reckoning from rest exact while the attitude stays near it.
+                let f = e.accel_mean_m_s2;
+                if f.norm() > 1e-6 {
+                    x.bias.accel_m_s2 = f.normalize() * (f.norm() - crate::geometry::GRAVITY_M_S2);
+                }
+                x
+            }
+            None => *self.tracker.state(),
+        };
+        let cov = static_covariance(est.map_or(0.01, |e| e.tilt_sigma_rad));
+        self.tracker.reset_state(x, cov);
+        self.tracker.load_frame(image);
+        self.last_t = Some(t);
+        self.phase = Phase::Static;
+        if self.static_frames.len() == STATIC_FRAMES_KEPT {
+            self.static_frames.pop_front();
+        }
+        self.static_frames.push_back(MapFrame {
+            t,
+            image: image.clone(),
+            t_world_cam: self.tracker.t_world_cam(),
+        });
+        self.imu_only_result(t)
+    }
+
+    fn track(&mut self, t: TimeNs, image: &Image<u8>) -> TrackResult {
+        let t0 = self.last_t.unwrap_or(t);
+        let mut pre = Preintegration::new(t0, self.tracker.state().bias);
+        self.imu_scratch.clear();
+        let a = self.imu.partition_point(|s| s.t < t0).saturating_sub(1);
+        let b = (self.imu.partition_point(|s| s.t <= t) + 1).min(self.imu.len());
+        self.imu_scratch.extend(self.imu.range(a..b));
+        pre.integrate(&self.imu_scratch, t, Some(&self.rig.noise));
+        self.last_t = Some(t);
+        self.tracker.track(t, image, &pre)
+    }
+
+    fn imu_only_result(&self, t: TimeNs) -> TrackResult {
+        TrackResult {
+            t,
+            state: *self.tracker.state(),
+            covariance: *self.tracker.covariance(),
+            log_gain: 0.0,
+            offset_gray: 0.0,
+            flag: None,
+            iterations: [0; NUM_LEVELS],
+            inlier_ratio: 0.0,
+            overlap: 0.0,
+            residual_rms_gray: f64::NAN,
+            imu_chi2: 0.0,
+            keyframe_id: None,
+            wants_keyframe: false,
+            time_s: 0.0,
+        }
+    }
+
+    fn next_seq(&mut self) -> u64 {
+        self.seq += 1;
+        self.seq
+    }
+
+    fn send(&mut self, job: MapJob) {
+        let Some(m) = &self.mapping else { return };
+        let seq = job.seq();
+        if self.cfg.realtime {
+            if m.jobs.try_send(job).is_err() {
+                self.stats.jobs_dropped += 1;
+            }
+        } else if m.jobs.send(job).is_ok() {
+            self.awaited = Some(seq);
+        }
+    }
+
+    fn start_keyframe(&mut self, frame: MapFrame, history: Vec<MapFrame>, propagate: bool) {
+        let id = self.next_kf_id;
+        self.next_kf_id += 1;
+        self.newest_kf = Some(id);
+        self.stats.keyframes += 1;
+        let b = &self.cfg.bootstrap;
+        let range =
+            (!propagate).then_some((b.init_inv_depth_min_m_inv, b.init_inv_depth_max_m_inv));
+        let seq = self.next_seq();
+        self.send(MapJob::NewKeyframe {
+            seq,
+            id,
+            frame,
+            history,
+            propagate,
+            inv_depth_range_m_inv: range,
+        });
+    }
+
+    fn observe(&mut self, frame: MapFrame) {
+        let seq = self.next_seq();
+        self.send(MapJob::Observe { seq, frame });
+    }
+
+    /// Takes the mapper's snapshots: offline, waits for the last job's; real-time, whatever has
+    /// arrived. Installs or refreshes the tracking keyframe.
+    fn collect_snapshots(&mut self) {
+        let mut latest: Option<MapSnapshot> = None;
+        if let Some(m) = &self.mapping {
+            if let Some(want) = self.awaited.take() {
+                while let Ok(s) = m.snapshots.recv() {
+                    let done = s.seq >= want;
+                    latest = Some(s);
+                    if done {
+                        break;
+                    }
+                }
+            }
+            while let Ok(s) = m.snapshots.try_recv() {
+                latest = Some(s);
+            }
+        }
+        if let Some(s) = latest {
+            self.apply_snapshot(&s);
+        }
+    }
+
+    fn apply_snapshot(&mut self, s: &MapSnapshot) {
+        if self.newest_kf != Some(s.keyframe_id) {
+            return; // a keyframe that has been superseded already
+        }
+        let n = s.map.points.len();
+        let is_new = self.tracking_kf != Some(s.keyframe_id);
+        let install = match self.phase {
+            Phase::Initializing => {
+                let mut depths: Vec<f32> = s
+                    .map
+                    .points
+                    .iter()
+                    .map(|p| 1.0 / p.inv_depth_m_inv)
+                    .collect();
+                let median_depth_m = if depths.is_empty() {
+                    f64::INFINITY
+                } else {
+                    let m = depths.len() / 2;
+                    *depths.select_nth_unstable_by(m, f32::total_cmp).1 as f64
+                };
+                let baseline_m = (self.tracker.t_world_cam().translation.vector
+                    - s.map.t_world_cam.translation.vector)
+                    .norm();
+                n >= self.cfg.bootstrap.min_initial_points
+                    && baseline_m >= self.cfg.bootstrap.min_init_baseline_ratio * median_depth_m
+            }
+            Phase::Tracking if is_new => {
+                n >= self.cfg.bootstrap.min_keyframe_points
+                    && s.forward_views >= self.cfg.bootstrap.min_keyframe_forward_views
+            }
+            Phase::Tracking => {
+                self.frames_since_refresh >= self.cfg.bootstrap.refresh_every_frames
+                    && n > self.tracking_kf_points + self.tracking_kf_points / 10
+            }
+            _ => false,
+        };
+        if !install {
+            return;
+        }
+        let pts: Vec<DepthPoint> = s
+            .map
+            .points
+            .iter()
+            .map(|p| DepthPoint {
+                u_px: p.u_px,
+                v_px: p.v_px,
+                inv_depth_m_inv: p.inv_depth_m_inv,
+            })
+            .collect();
+        let mut pyr = Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
+        pyr.fill_from_u8(&s.keyframe_image);
+        let kf = Keyframe::new(
+            s.keyframe_id,
+            s.keyframe_t,
+            pyr,
+            &self.rig.camera,
+            s.map.t_world_cam,
+            &pts,
+            &self.cfg.tracking,
+        );
+        // A refresh of the same keyframe keeps the brightness estimate.
+        self.tracker.set_keyframe(kf);
+        self.tracking_kf = Some(s.keyframe_id);
+        self.tracking_kf_points = n;
+        self.frames_since_refresh = 0;
+        if self.phase == Phase::Initializing {
+            self.phase = Phase::Tracking;
+            self.consecutive_flagged = 0;
+            if self.stats.tracking_since.is_none() {
+                self.stats.tracking_since = self.last_t;
+            }
+        }
+    }
+}
+
+/// At rest at the origin with attitude `r_world_body` and gyro bias `bg`.
+fn rest_state(
+    t: TimeNs,
+    r_world_body: nalgebra::UnitQuaternion<f64>,
+    bg: Vector3<f64>,
+) -> FrameState {
+    FrameState {
+        nav: NavState {
+            t,
+            r_world_body,
+            p_world_m: Vector3::zeros(),
+            v_world_m_s: Vector3::zeros(),
+        },
+        bias: crate::imu::ImuBias {
+            gyro_rad_s: bg,
+            accel_m_s2: Vector3::zeros(),
+        },
+    }
+}
+
+/// Covariance of the held rest state: position and velocity known (the pad is the origin), tilt
+/// from the rest estimate, yaw free-ish, gyro bias well known, accelerometer bias not observed.
+fn static_covariance(tilt_sigma_rad: f64) -> Matrix15 {
+    let mut s = [0.0f64; 15];
+    s[0] = tilt_sigma_rad.max(1e-3);
+    s[1] = tilt_sigma_rad.max(1e-3);
+    s[2] = 0.01;
+    for k in 3..6 {
+        s[k] = 1e-3;
+    }
+    for k in 6..9 {
+        s[k] = 1e-3;
+    }
+    for k in 9..12 {
+        s[k] = 1e-3;
+    }
+    for k in 12..15 {
+        s[k] = 0.1;
+    }
+    Matrix15::from_fn(|a, b| if a == b { s[a] * s[a] } else { 0.0 })
+}

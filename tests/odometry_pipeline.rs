@@ -1,0 +1,174 @@
+//! The full odometry (issue 5): rest on the pad, take-off bootstrap with metric depth from the
+//! IMU, tracking on semidense maps from the mapping thread, loss (black frames) and recovery with
+//! a counted reset, determinism of two offline replays, and the real EuRoC clip on the pad.
+
+use std::path::PathBuf;
+use vidslam::dataset::{AslDataset, shared_data_or_skip};
+use vidslam::eval::{EvalOptions, evaluate};
+use vidslam::image::Image;
+use vidslam::runtime::odometry::{Odometry, OdometryConfig, Phase, Rig};
+use vidslam::runtime::{ReplayOptions, replay, trajectory};
+use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
+use vidslam::tracking::pose_of;
+
+/// The first 5 s of the built-in flight: 2 s on the pad with the rotors running, then take-off.
+fn takeoff() -> PathBuf {
+    static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    ONCE.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("vidslam-odometry-{}", std::process::id()));
+        let mut cfg = SimConfig::new(
+            dir.clone(),
+            TrajectorySource::Builtin("demo".into()),
+            ImuSource::Synth,
+        );
+        cfg.seconds = Some(5.0);
+        cfg.seed = 11;
+        cfg.force = true;
+        generate(&cfg).unwrap();
+        dir
+    })
+    .clone()
+}
+
+#[test]
+fn rest_then_takeoff_bootstraps_metric_tracking() {
+    let dir = takeoff();
+    let out = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    let phases = &out.phases;
+    // Valid poses from the first second: the rest is detected after 0.5 s of IMU.
+    assert!(
+        out.frames_waiting <= 12,
+        "{} frames before rest",
+        out.frames_waiting
+    );
+    assert_eq!(phases.first(), Some(&Phase::Static));
+    let first_tracking = phases.iter().position(|p| *p == Phase::Tracking);
+    let onset = out.onset_t.expect("take-off detected");
+    let since = out.tracking_since.expect("tracking started");
+    let init_s = since.secs_since(onset);
+    println!(
+        "frames waiting {}, onset at +{:.2} s, tracking after {:.2} s, phases {:?}",
+        out.frames_waiting,
+        onset.secs_since(out.frames[0].t),
+        init_s,
+        first_tracking
+    );
+    assert!(init_s > 0.0 && init_s < 2.0, "{init_s}");
+    assert!(out.frames.iter().all(|r| {
+        let p = pose_of(&r.state);
+        p.translation.vector.iter().all(|v| v.is_finite())
+    }));
+    // Metric scale of the take-off: Sim3 scale of the estimate against ground truth.
+    let gt = AslDataset::open(&dir)
+        .unwrap()
+        .ground_truth()
+        .unwrap()
+        .unwrap()
+        .trajectory();
+    let e = evaluate(&gt, &trajectory(&out), &EvalOptions::default()).unwrap();
+    println!(
+        "take-off: ATE {:.3} m over {:.2} m of path, scale error {:.1} %",
+        e.ate_rmse_m, e.gt_path_m, e.scale_error_pct
+    );
+    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
+    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+}
+
+#[test]
+fn offline_replays_are_identical() {
+    let dir = takeoff();
+    let opts = ReplayOptions {
+        max_seconds: Some(3.5),
+        ..Default::default()
+    };
+    let a = trajectory(&replay(&dir, &opts, &mut |_, _| {}).unwrap());
+    let b = trajectory(&replay(&dir, &opts, &mut |_, _| {}).unwrap());
+    assert_eq!(a.poses.len(), b.poses.len());
+    for (p, q) in a.poses.iter().zip(&b.poses) {
+        assert_eq!(p, q, "replays differ");
+    }
+}
+
+#[test]
+fn black_frames_lose_tracking_and_it_recovers_with_a_reset() {
+    let dir = takeoff();
+    let ds = AslDataset::open(&dir).unwrap();
+    let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
+    let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
+    let mut odo = Odometry::new(
+        OdometryConfig::default(),
+        Rig {
+            camera: ds.camera.model,
+            t_body_cam: ds.camera.t_body_cam,
+            noise: ds.imu.noise,
+        },
+    );
+    let black = |k: usize| (70..75).contains(&k); // 0.25 s of covered lens while flying
+    let mut next = 0;
+    let mut seen = Vec::new();
+    for (k, f) in frames.iter().enumerate() {
+        while next < imu.len() && imu[next].t <= f.t {
+            odo.push_imu(&imu[next]);
+            next += 1;
+        }
+        if next < imu.len() {
+            odo.push_imu(&imu[next]);
+            next += 1;
+        }
+        let img = if black(k) {
+            Image::<u8>::new(ds.camera.model.width, ds.camera.model.height)
+        } else {
+            f.load().unwrap()
+        };
+        let r = odo.push_frame(f.t, img);
+        assert!(
+            pose_of(&r.result.state)
+                .translation
+                .vector
+                .iter()
+                .all(|v| v.is_finite())
+        );
+        seen.push((r.phase, r.resets));
+    }
+    let before: Vec<_> = seen[..70].iter().map(|s| s.0).collect();
+    assert!(before.contains(&Phase::Tracking), "{before:?}");
+    assert!(seen[70..80].iter().any(|s| s.0 == Phase::Lost), "{seen:?}");
+    let last = seen.last().unwrap();
+    assert_eq!(last.0, Phase::Tracking, "{seen:?}");
+    assert_eq!(last.1, 1, "one reset counted");
+    let (stats, _) = odo.finish();
+    assert_eq!(stats.resets, 1);
+}
+
+#[test]
+fn real_clip_on_the_pad_gives_a_valid_still_pose_from_the_first_second() {
+    let Some(dir) = shared_data_or_skip("euroc/V1_01_easy_micro") else {
+        return;
+    };
+    let out = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    let first_t = AslDataset::open(&dir)
+        .unwrap()
+        .frames()
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .t;
+    let first_valid = out.frames.first().expect("a valid pose").t;
+    let p0 = pose_of(&out.frames[0].state).translation.vector;
+    let drift_m = out
+        .frames
+        .iter()
+        .map(|r| (pose_of(&r.state).translation.vector - p0).norm())
+        .fold(0.0, f64::max);
+    println!(
+        "first valid pose {:.2} s after the first frame, {} frames, max drift {:.4} m, phases {:?}",
+        first_valid.secs_since(first_t),
+        out.frames.len(),
+        drift_m,
+        out.phases.iter().collect::<std::collections::BTreeSet<_>>()
+    );
+    assert!(first_valid.secs_since(first_t) <= 1.0);
+    assert!(drift_m <= 0.02);
+    assert!(out.phases.iter().all(|p| *p == Phase::Static));
+}
