@@ -204,7 +204,7 @@ impl Odometry {
             rest_state(TimeNs(0), Default::default(), Default::default()),
             Matrix15::identity(),
         );
-        let detector = StaticDetector::new(cfg.static_detector.clone(), &rig.noise);
+        let detector = StaticDetector::new(cfg.static_detector, &rig.noise);
         let mapping = MappingThread::spawn(
             cfg.mapping.clone(),
             rig.camera,
@@ -617,21 +617,10 @@ fn rest_state(
 /// Covariance of the held rest state: position and velocity known (the pad is the origin), tilt
 /// from the rest estimate, yaw free-ish, gyro bias well known, accelerometer bias not observed.
 fn static_covariance(tilt_sigma_rad: f64) -> Matrix15 {
-    let mut s = [0.0f64; 15];
-    s[0] = tilt_sigma_rad.max(1e-3);
-    s[1] = tilt_sigma_rad.max(1e-3);
-    s[2] = 0.01;
-    for k in 3..6 {
-        s[k] = 1e-3;
-    }
-    for k in 6..9 {
-        s[k] = 1e-3;
-    }
-    for k in 9..12 {
-        s[k] = 1e-3;
-    }
-    for k in 12..15 {
-        s[k] = 0.1;
-    }
+    let tilt = tilt_sigma_rad.max(1e-3);
+    // [θx, θy, θz (yaw), p, v, bω, ba]
+    let s = [
+        tilt, tilt, 0.01, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 0.1, 0.1, 0.1,
+    ];
     Matrix15::from_fn(|a, b| if a == b { s[a] * s[a] } else { 0.0 })
 }

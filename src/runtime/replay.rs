@@ -201,7 +201,7 @@ fn replay_full(
     let cfg = OdometryConfig {
         tracking: opts.tracker.clone(),
         mapping: opts.mapping.clone(),
-        static_detector: opts.static_detector.clone(),
+        static_detector: opts.static_detector,
         bootstrap: opts.bootstrap.clone(),
         realtime: opts.realtime,
     };

@@ -93,16 +93,7 @@ impl Keyframe {
         let mut levels = Vec::with_capacity(pyramid.num_levels());
         for (l, cam) in cameras.iter().enumerate() {
             let li = l.min(NUM_LEVELS - 1);
-            levels.push(build_level(
-                &pyramid,
-                l,
-                cam,
-                &p3,
-                cfg.level_cell_px[li],
-                cfg.max_points_per_level[li],
-                cfg.border_px,
-                cfg.gradient_weight_gray_px,
-            ));
+            levels.push(build_level(&pyramid, l, cam, &p3, cfg, li));
         }
         Keyframe {
             id,
@@ -121,16 +112,21 @@ impl Keyframe {
     }
 }
 
+/// Level `level`'s points; `li` indexes the per-level settings of `cfg`.
 fn build_level(
     pyr: &Pyramid,
     level: usize,
     cam: &CameraModel,
     points: &[Vector3<f64>],
-    cell_px: usize,
-    max_points: usize,
-    border_px: f64,
-    gradient_weight_c: f32,
+    cfg: &TrackerConfig,
+    li: usize,
 ) -> LevelPoints {
+    let (cell_px, max_points, border_px) = (
+        cfg.level_cell_px[li],
+        cfg.max_points_per_level[li],
+        cfg.border_px,
+    );
+    let gradient_weight_c = cfg.gradient_weight_gray_px;
     let img = pyr.level(level);
     let (gx, gy) = pyr.gradients(level);
     let cell = cell_px.max(1);
