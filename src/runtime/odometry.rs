@@ -54,6 +54,8 @@ pub struct BootstrapConfig {
     /// keyframe), so that it is triangulated with forward parallax before anything is tracked
     /// against it.
     pub min_keyframe_forward_views: usize,
+    /// …unless fewer than this fraction of the current keyframe's points are still inliers.
+    pub urgent_inlier_ratio: f64,
     /// The first keyframe is tracked only once the camera has moved this fraction of the map's
     /// median depth from it (the IMU-measured baseline that makes the first depths metric).
     pub min_init_baseline_ratio: f64,
@@ -87,6 +89,7 @@ impl Default for BootstrapConfig {
             min_initial_points: 1500,
             min_keyframe_points: 500,
             min_keyframe_forward_views: 3,
+            urgent_inlier_ratio: 0.6,
             max_init_s: 3.0,
             min_init_baseline_ratio: 0.1,
             onset_margin_s: 0.3,
@@ -191,6 +194,8 @@ pub struct Odometry {
     static_frames: VecDeque<MapFrame>,
     init_started: Option<TimeNs>,
     consecutive_flagged: u32,
+    /// Inlier ratio of the last tracked frame against its keyframe.
+    last_inlier_ratio: f64,
     stats: OdometryStats,
 }
 
@@ -229,6 +234,7 @@ impl Odometry {
             static_frames: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
             init_started: None,
             consecutive_flagged: 0,
+            last_inlier_ratio: 1.0,
             stats: OdometryStats::default(),
             cfg,
             rig,
@@ -336,6 +342,7 @@ impl Odometry {
                 }
             }
             Phase::Tracking => {
+                self.last_inlier_ratio = result.inlier_ratio;
                 if result.flag == Some(FlagReason::FewInliers) {
                     self.consecutive_flagged += 1;
                 } else {
@@ -546,8 +553,10 @@ impl Odometry {
                     && baseline_m >= self.cfg.bootstrap.min_init_baseline_ratio * median_depth_m
             }
             Phase::Tracking if is_new => {
+                // Wait for forward parallax unless the old keyframe is slipping away.
+                let urgent = self.last_inlier_ratio < self.cfg.bootstrap.urgent_inlier_ratio;
                 n >= self.cfg.bootstrap.min_keyframe_points
-                    && s.forward_views >= self.cfg.bootstrap.min_keyframe_forward_views
+                    && (urgent || s.forward_views >= self.cfg.bootstrap.min_keyframe_forward_views)
             }
             Phase::Tracking => {
                 self.frames_since_refresh >= self.cfg.bootstrap.refresh_every_frames
