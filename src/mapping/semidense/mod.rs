@@ -97,6 +97,11 @@ pub struct SemidenseConfig {
     /// A view is used for a pixel only if the whole search range spans at least this many pixels
     /// along its epipolar curve (smaller: too little parallax to say anything), px.
     pub min_parallax_px: f32,
+    /// A view is used for a pixel only while its baseline is at most this fraction of the pixel's
+    /// depth (at the far end of the pixel's search window): beyond, the 7x7 patch changes too much
+    /// for the linearised warp (slanted surfaces close to the camera). DPPTAM bounds the baseline
+    /// per frame by the median scene depth instead.
+    pub max_baseline_depth_ratio: f32,
     /// Minimum `|cos|` between the keyframe gradient and the epipolar direction (DPPTAM: 0.2 for
     /// tracking points, 0.3 for map points).
     pub min_gradient_epipolar_cos: f32,
@@ -147,6 +152,7 @@ impl Default for SemidenseConfig {
             min_inv_depth_m_inv: 0.01,
             max_inv_depth_m_inv: 4.0,
             min_parallax_px: 4.0,
+            max_baseline_depth_ratio: 0.4,
             min_gradient_epipolar_cos: 0.3,
             max_patch_rms: 12.0,
             min_second_best_ratio: 1.3,
@@ -217,6 +223,8 @@ pub struct ObserveStats {
     pub out_of_view: usize,
     /// The search range spans fewer than `min_parallax_px` pixels.
     pub low_parallax: usize,
+    /// The baseline is too wide for the pixel's depth (`max_baseline_depth_ratio`).
+    pub wide_baseline: usize,
     /// Gradient near-perpendicular to the epipolar direction, or a degenerate patch warp.
     pub gradient_parallel: usize,
     /// Best patch residual above `max_patch_rms`.
@@ -235,6 +243,7 @@ impl ObserveStats {
         self.matched += o.matched;
         self.out_of_view += o.out_of_view;
         self.low_parallax += o.low_parallax;
+        self.wide_baseline += o.wide_baseline;
         self.gradient_parallel += o.gradient_parallel;
         self.photometric += o.photometric;
         self.ambiguous += o.ambiguous;

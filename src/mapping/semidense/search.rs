@@ -20,8 +20,10 @@ const GN_STEPS: usize = 2;
 /// this factor times the best one's (or times the noise floor, gray levels², if that is larger).
 const SECOND_SCAN_RATIO: f32 = 4.0;
 const SCAN_NOISE_FLOOR: f32 = 50.0;
-/// Scan window extension beyond the range ends, px (the 5-sample window's half-width + 1).
-const SCAN_MARGIN_PX: f64 = 3.0;
+/// Scan extension beyond the range ends, px: the 5-sample window's half-width plus 3 px, so that a
+/// minimum at a range end is still an interior minimum of the scan (the refined match must then
+/// lie within the range, give or take 2σ).
+const SCAN_MARGIN_PX: f64 = 5.0;
 
 /// What the search of one pixel in one view gave.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -29,6 +31,7 @@ pub(crate) enum Outcome {
     Matched(Estimate),
     OutOfView,
     LowParallax,
+    WideBaseline,
     GradientParallel,
     Photometric,
     Ambiguous,
@@ -45,6 +48,9 @@ pub(crate) struct ViewContext<'a> {
     /// Width of the global inverse-depth range, 1/m.
     pub global_width_m_inv: f64,
     pub min_parallax_px: f64,
+    /// `|t_view_kf|`, m, and the largest accepted baseline / depth.
+    pub baseline_m: f64,
+    pub max_baseline_depth_ratio: f64,
     pub min_cos: f32,
     pub max_patch_rms: f32,
     pub min_second_best_ratio: f32,
@@ -186,6 +192,9 @@ impl Minima {
 pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f64) -> Outcome {
     let cam = ctx.camera;
     let line = ctx.geometry.line(&kp.ray);
+    if ctx.baseline_m * lo > ctx.max_baseline_depth_ratio {
+        return Outcome::WideBaseline;
+    }
     let Some((lo, hi)) = line.front_range(lo, hi) else {
         return Outcome::OutOfView;
     };
@@ -277,7 +286,10 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
 
     // Epipolar scan: 1-px steps along the curve, exact at knots, 5-sample zero-mean SSD.
     let (vd, vs) = (ctx.image.data(), ctx.image.stride());
-    let (x_lim, y_lim) = ((ctx.image.width() - 1) as f32, (ctx.image.height() - 1) as f32);
+    let (x_lim, y_lim) = (
+        (ctx.image.width() - 1) as f32,
+        (ctx.image.height() - 1) as f32,
+    );
     let pix = |s: f64| {
         let u = to_pixel(cam, &n_at(s)).0;
         [u.x as f32, u.y as f32]
@@ -311,10 +323,6 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             off += 1.0;
             if !(ux >= 0.0 && uy >= 0.0 && ux < x_lim && uy < y_lim) {
                 filled = 0;
-                // a gap ends a run of costs: its last one may be a minimum
-                if c_prev <= c_prev2 {
-                    minima.push(c_prev, s_prev);
-                }
                 (c_prev2, c_prev) = (f32::INFINITY, f32::INFINITY);
                 continue;
             }
@@ -329,7 +337,9 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             let svv = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + w[3] * w[3] + w[4] * w[4];
             let svt = w[0] * t5[0] + w[1] * t5[1] + w[2] * t5[2] + w[3] * t5[3] + w[4] * t5[4];
             let c = svv - sv * sv * 0.2 - 2.0 * svt + st5;
-            if c_prev <= c_prev2 && c_prev < c {
+            // Only interior minima: one at the end of the scan (or of a gap) may continue outside
+            // the range, and then the match is elsewhere.
+            if c_prev <= c_prev2 && c_prev < c && c_prev2 < f32::INFINITY {
                 minima.push(c_prev, s_prev);
             }
             // the window's centre sample was taken 2 steps ago
@@ -339,11 +349,8 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         s_k = s_k1;
         u_k = u_k1;
     }
-    if c_prev <= c_prev2 {
-        minima.push(c_prev, s_prev);
-    }
     if !minima.0[0].0.is_finite() {
-        return Outcome::OutOfView;
+        return Outcome::OutOfRange;
     }
 
     // Full 7x7 check (eq. 28) of the best minimum, with the Gauss–Newton terms of the refinement;
