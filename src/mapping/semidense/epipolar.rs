@@ -129,11 +129,12 @@ pub(crate) fn normalised_footprint(cam: &CameraModel) -> Option<[f64; 4]> {
     ];
     let mut any = false;
     let mut add = |u: usize, v: usize| {
-        if let Some(r) = cam.unproject(&Vector2::new(u as f64, v as f64)) {
-            if r.x.is_finite() && r.y.is_finite() {
-                b = [b[0].min(r.x), b[1].max(r.x), b[2].min(r.y), b[3].max(r.y)];
-                any = true;
-            }
+        if let Some(r) = cam.unproject(&Vector2::new(u as f64, v as f64))
+            && r.x.is_finite()
+            && r.y.is_finite()
+        {
+            b = [b[0].min(r.x), b[1].max(r.x), b[2].min(r.y), b[3].max(r.y)];
+            any = true;
         }
     };
     for u in 0..w {

@@ -68,6 +68,10 @@
 //!
 //! Nothing assumes a scale: inverse depths are in 1/m given poses in metres.
 
+// `if !(x > 0.0)` is deliberate throughout: a NaN must fail every check, so that no input panics or
+// poisons the map.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 mod epipolar;
 mod fusion;
 mod keyframe;
@@ -252,3 +256,6 @@ impl ObserveStats {
         self
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -377,10 +377,8 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         (None, Some(b)) => (s2, b, None),
         (None, None) => return Outcome::OutOfView,
     };
-    if let Some(o) = other {
-        if o < ctx.min_second_best_ratio * gn.0 {
-            return Outcome::Ambiguous;
-        }
+    if other.is_some_and(|o| o < ctx.min_second_best_ratio * gn.0) {
+        return Outcome::Ambiguous;
     }
 
     // Sub-pixel: Gauss–Newton on the curve parameter, keeping the best evaluated point.
