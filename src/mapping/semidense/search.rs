@@ -15,7 +15,7 @@ const KNOT_PX: f64 = 8.0;
 /// Longest walk, px (longer than any image diagonal the mapper is meant for).
 const MAX_WALK_PX: f64 = 4000.0;
 /// Gauss–Newton steps of the sub-pixel refinement.
-const GN_STEPS: usize = 2;
+const GN_STEPS: usize = 1;
 /// The second scan minimum is checked with the full template only if its 5-sample cost is below
 /// this factor times the best one's (or times the noise floor, gray levels², if that is larger).
 const SECOND_SCAN_RATIO: f32 = 4.0;
@@ -301,7 +301,8 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     let mut w = [0.0f32; 5];
     let mut ws = [0.0f64; 3];
     let mut filled = 0usize; // consecutive valid samples
-    let (mut c_prev2, mut c_prev, mut s_prev) = (f32::INFINITY, f32::INFINITY, 0.0f64);
+    let (mut c_prev2, mut c_prev) = (f32::INFINITY, f32::INFINITY);
+    let (mut s_prev2, mut s_prev) = (0.0f64, 0.0f64);
     let mut minima = Minima([(f32::INFINITY, f64::NAN); 2]);
     let mut s_k = s_a;
     let mut u_k = pix(s_k);
@@ -338,12 +339,22 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             let svt = w[0] * t5[0] + w[1] * t5[1] + w[2] * t5[2] + w[3] * t5[3] + w[4] * t5[4];
             let c = svv - sv * sv * 0.2 - 2.0 * svt + st5;
             // Only interior minima: one at the end of the scan (or of a gap) may continue outside
-            // the range, and then the match is elsewhere.
-            if c_prev <= c_prev2 && c_prev < c && c_prev2 < f32::INFINITY {
-                minima.push(c_prev, s_prev);
+            // the range, and then the match is elsewhere. (Tested first: beating the second best,
+            // rarely true once the scan is under way, so the branch predicts well.)
+            if c_prev < minima.0[1].0 && c_prev <= c_prev2 && c_prev < c && c_prev2 < f32::INFINITY
+            {
+                // sub-sample position from the parabola through the three costs
+                let den = c_prev2 - 2.0 * c_prev + c;
+                let d = if den > 0.0 {
+                    (0.5 * (c_prev2 - c) / den).clamp(-0.5, 0.5)
+                } else {
+                    0.0
+                };
+                minima.push(c_prev, s_prev + d as f64 * 0.5 * (ws[0] - s_prev2));
             }
             // the window's centre sample was taken 2 steps ago
-            (c_prev2, c_prev, s_prev) = (c_prev, c, ws[0]);
+            (c_prev2, c_prev) = (c_prev, c);
+            (s_prev2, s_prev) = (s_prev, ws[0]);
         }
         off -= len;
         s_k = s_k1;
@@ -368,13 +379,23 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         .map(|(c, g, h)| (c, g, h, ut.norm()))
     };
     let [(_, s1), (c2_scan, s2)] = minima.0;
-    let first = gn_at(s1);
     let check_second = c2_scan <= SECOND_SCAN_RATIO * minima.0[0].0.max(SCAN_NOISE_FLOOR);
-    let second = if check_second { gn_at(s2) } else { None };
+    let first = gn_at(s1);
+    let second = if check_second {
+        patch_cost(ctx.image, pix(s2), &af, &t7)
+    } else {
+        None
+    };
     let (mut s, mut gn, other) = match (first, second) {
-        (Some(a), Some(b)) if b.0 < a.0 => (s2, b, Some(a.0)),
-        (Some(a), b) => (s1, a, b.map(|b| b.0)),
-        (None, Some(b)) => (s2, b, None),
+        (Some(a), Some(b)) if b < a.0 => match gn_at(s2) {
+            Some(g) => (s2, g, Some(a.0)),
+            None => (s1, a, Some(b)),
+        },
+        (Some(a), b) => (s1, a, b),
+        (None, Some(_)) => match gn_at(s2) {
+            Some(g) => (s2, g, None),
+            None => return Outcome::OutOfView,
+        },
         (None, None) => return Outcome::OutOfView,
     };
     if other.is_some_and(|o| o < ctx.min_second_best_ratio * gn.0) {
