@@ -121,6 +121,9 @@ pub(crate) fn to_pixel(cam: &CameraModel, n: &Vector2<f64>) -> (Vector2<f64>, Ma
 /// border pixel can be unprojected.
 pub(crate) fn normalised_footprint(cam: &CameraModel) -> Option<[f64; 4]> {
     let (w, h) = (cam.width, cam.height);
+    if w == 0 || h == 0 {
+        return None;
+    }
     let mut b = [
         f64::INFINITY,
         f64::NEG_INFINITY,

@@ -14,8 +14,6 @@ const PATCH: usize = 49;
 const KNOT_PX: f64 = 8.0;
 /// Longest walk, px (longer than any image diagonal the mapper is meant for).
 const MAX_WALK_PX: f64 = 4000.0;
-/// Gauss–Newton steps of the sub-pixel refinement.
-const GN_STEPS: usize = 1;
 /// The second scan minimum is checked with the full template only if its 5-sample cost is below
 /// this factor times the best one's (or times the noise floor, gray levels², if that is larger).
 const SECOND_SCAN_RATIO: f32 = 4.0;
@@ -307,7 +305,8 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     let mut s_k = s_a;
     let mut u_k = pix(s_k);
     let mut off = 0.0f32;
-    for seg in 0..n_seg {
+    let mut steps_left = MAX_WALK_PX as usize;
+    'walk: for seg in 0..n_seg {
         let s_k1 = if seg + 1 == n_seg {
             s_b
         } else {
@@ -319,6 +318,10 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         let inv_len = 1.0 / len;
         let (stx, sty, sts) = (ddx * inv_len, ddy * inv_len, (s_k1 - s_k) * inv_len as f64);
         while off < len {
+            if steps_left == 0 {
+                break 'walk; // only a wildly distorting camera gets here
+            }
+            steps_left -= 1;
             let (ux, uy) = (u_k[0] + off * stx, u_k[1] + off * sty);
             let s = s_k + off as f64 * sts;
             off += 1.0;
@@ -386,7 +389,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     } else {
         None
     };
-    let (mut s, mut gn, other) = match (first, second) {
+    let (s, gn, other) = match (first, second) {
         (Some(a), Some(b)) if b < a.0 => match gn_at(s2) {
             Some(g) => (s2, g, Some(a.0)),
             None => (s1, a, Some(b)),
@@ -402,34 +405,18 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         return Outcome::Ambiguous;
     }
 
-    // Sub-pixel: Gauss–Newton on the curve parameter, keeping the best evaluated point.
-    let s_int = s;
+    // Sub-pixel: one Gauss–Newton step on the curve parameter (the scan's parabola already starts
+    // it within a fraction of a pixel), at most 1 px; the cost after it is the quadratic model's
+    // `c + 2 g δ + h δ²`, which saves a patch evaluation per match.
     let (mut best_c, mut best_s) = (gn.0, s);
-    for it in 0..GN_STEPS {
-        let (_, g, h, ut_norm) = gn;
-        if !(h > 0.0) {
-            break;
-        }
+    let (c0, g, h, ut_norm) = gn;
+    if h > 0.0 && ut_norm > 0.0 {
         let step_px = (-(g / h) as f64 * ut_norm).clamp(-1.0, 1.0);
-        if step_px.abs() < 0.01 {
-            break;
+        let d = (step_px / ut_norm) as f32;
+        let predicted = c0 + 2.0 * g * d + h * d * d;
+        if predicted < c0 {
+            (best_c, best_s) = (predicted, s + step_px / ut_norm);
         }
-        s += step_px / ut_norm;
-        if ((s - s_int) * ut_norm).abs() > 2.0 {
-            break;
-        }
-        let next = if it + 1 == GN_STEPS {
-            patch_cost(ctx.image, pix(s), &af, &t7).map(|c| (c, 0.0, 0.0, ut_norm))
-        } else {
-            gn_at(s)
-        };
-        let Some(next) = next else {
-            break;
-        };
-        if next.0 < best_c {
-            (best_c, best_s) = (next.0, s);
-        }
-        gn = next;
     }
     let rms = (best_c.max(0.0) / PATCH as f32).sqrt();
     if !(rms <= ctx.max_patch_rms) {

@@ -250,6 +250,10 @@ fn degenerate_input_never_panics() {
         if x % 3 == 0 { f32::NAN } else { 1e30 }
     });
     kf.observe(&nan_img, &pose(1));
+    let mut k = SemidenseKeyframe::new(&nan_img, &cam, &pose(0), &cfg);
+    k.observe(&img, &pose(1));
+    k.observe(&nan_img, &pose(2));
+    k.map();
     kf.set_inv_depth_range(f64::NAN, 1.0);
     kf.set_inv_depth_range(2.0, 1.0);
     kf.set_inv_depth_range(-1.0, 1.0);
@@ -292,7 +296,7 @@ fn degenerate_input_never_panics() {
     kf.map();
 
     // Tiny images, a size mismatch at construction, a constant image, a broken camera.
-    for (w, h) in [(1, 1), (5, 5), (12, 9)] {
+    for (w, h) in [(0, 0), (0, 5), (1, 1), (5, 5), (12, 9)] {
         let c = CameraModel {
             width: w,
             height: h,
