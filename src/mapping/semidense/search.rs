@@ -11,7 +11,7 @@ use nalgebra::{Matrix2, Vector2};
 const HALF: i32 = 3;
 const PATCH: usize = 49;
 /// The distorted epipolar curve is evaluated exactly every this many pixels, straight between.
-const KNOT_PX: f64 = 8.0;
+const KNOT_PX: f64 = 16.0;
 /// Longest walk, px (longer than any image diagonal the mapper is meant for).
 const MAX_WALK_PX: f64 = 4000.0;
 /// The second scan minimum is checked with the full template only if its 5-sample cost is below
