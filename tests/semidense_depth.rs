@@ -81,17 +81,33 @@ struct Errors {
     with_depth: usize,
     median: f64,
     p90: f64,
+    /// Fraction of gross errors (> 10 %) at the point's pixel.
     outliers: f64,
+    /// The same, where no ground-truth depth of the 3x3 neighbourhood is within 10 %: what stays
+    /// after discounting the one-pixel ambiguity of silhouettes (an edge pixel of a box in front of
+    /// a wall rendered with the wall's depth).
+    outliers_3x3: f64,
 }
 
 /// Relative depth errors `|1/ρ − z| / z` at the points' pixels (pixels without depth skipped).
 fn errors(map: &SemidenseMap, depth: &Image<f32>) -> Errors {
+    let mut gross_3x3 = 0usize;
     let mut rel: Vec<f64> = map
         .points
         .iter()
         .filter_map(|p| {
-            let z = depth.get(p.u_px as usize, p.v_px as usize) as f64;
-            (z > 0.0).then(|| ((1.0 / p.inv_depth_m_inv as f64) - z).abs() / z)
+            let (x, y) = (p.u_px as usize, p.v_px as usize);
+            let z = depth.get(x, y) as f64;
+            let est = 1.0 / p.inv_depth_m_inv as f64;
+            let err = |z: f64| (est - z).abs() / z;
+            let near = (y.saturating_sub(1)..=(y + 1).min(depth.height() - 1)).any(|yy| {
+                (x.saturating_sub(1)..=(x + 1).min(depth.width() - 1)).any(|xx| {
+                    let zz = depth.get(xx, yy) as f64;
+                    zz > 0.0 && err(zz) <= 0.10
+                })
+            });
+            gross_3x3 += usize::from(z > 0.0 && !near);
+            (z > 0.0).then(|| err(z))
         })
         .collect();
     rel.sort_by(f64::total_cmp);
@@ -106,6 +122,7 @@ fn errors(map: &SemidenseMap, depth: &Image<f32>) -> Errors {
         median: q(0.5),
         p90: q(0.9),
         outliers: rel.iter().filter(|&&e| e > 0.10).count() as f64 / rel.len().max(1) as f64,
+        outliers_3x3: gross_3x3 as f64 / rel.len().max(1) as f64,
     }
 }
 
@@ -124,25 +141,37 @@ fn build(
         (thread_cpu_s() - c0) * 1e3
     );
     if let Some(p) = prior {
+        let c0 = thread_cpu_s();
         let seeded = k.propagate_from(p);
         eprintln!(
-            "  propagated priors on {seeded} of {} candidates",
-            k.num_candidates()
+            "  propagated {} points: priors on {seeded} of {} candidates, {:.1} ms CPU",
+            p.points.len(),
+            k.num_candidates(),
+            (thread_cpu_s() - c0) * 1e3
         );
     }
     let mut ms = vec![];
     for &v in views {
+        // CPU time, the least of 3 runs (on clones): the machine is shared.
+        let mut best_ms = f64::INFINITY;
+        for _ in 0..2 {
+            let mut scratch = k.clone();
+            let c0 = thread_cpu_s();
+            scratch.observe(&seq.images[v], &seq.poses[v]);
+            best_ms = best_ms.min((thread_cpu_s() - c0) * 1e3);
+        }
         let (t0, c0) = (Instant::now(), thread_cpu_s());
         let s = k.observe(&seq.images[v], &seq.poses[v]);
         let wall_ms = t0.elapsed().as_secs_f64() * 1e3;
-        ms.push((thread_cpu_s() - c0) * 1e3);
+        ms.push(best_ms.min((thread_cpu_s() - c0) * 1e3));
         eprintln!(
-            "  view {v:2}: {:5.1} ms CPU ({wall_ms:5.1} wall)  searched {:5} matched {:5} | out {:5} parallax {:5} grad {:5} photo {:4} ambig {:4} range {:4} gave up {:5}",
+            "  view {v:2}: {:5.1} ms CPU ({wall_ms:5.1} wall)  searched {:5} matched {:5} | out {:5} parallax {:5} wide {:5} grad {:5} photo {:4} ambig {:4} range {:4} gave up {:5}",
             ms.last().unwrap(),
             s.searched,
             s.matched,
             s.out_of_view,
             s.low_parallax,
+            s.wide_baseline,
             s.gradient_parallel,
             s.photometric,
             s.ambiguous,
@@ -171,7 +200,7 @@ fn semidense_depth_matches_ground_truth() {
     let max_ms = ms.iter().cloned().fold(0.0, f64::max);
     eprintln!(
         "keyframe {kf}, {} views, {} candidates: {} points ({} with depth), median relative depth \
-         error {:.2} %, p90 {:.2} %, outliers (>10 %) {:.2} %; observe {:.1} ms mean, {:.1} ms max; \
+         error {:.2} %, p90 {:.2} %, outliers (>10 %) {:.2} % ({:.2} % allowing 1 px); observe {:.1} ms mean, {:.1} ms max; \
          map {:.2} ms (CPU time)",
         views.len(),
         k.num_candidates(),
@@ -180,11 +209,88 @@ fn semidense_depth_matches_ground_truth() {
         e.median * 100.0,
         e.p90 * 100.0,
         e.outliers * 100.0,
+        e.outliers_3x3 * 100.0,
         mean_ms,
         max_ms,
         map_ms
     );
+    // The same with the candidates searched on the rayon pool: identical result; wall time
+    // against a sequential rerun interleaved with it (same machine load).
+    let par_cfg = SemidenseConfig {
+        parallel: true,
+        ..cfg.clone()
+    };
+    let mut kp = SemidenseKeyframe::new(&seq.images[kf], &seq.camera, &seq.poses[kf], &par_cfg);
+    let mut ks = SemidenseKeyframe::new(&seq.images[kf], &seq.camera, &seq.poses[kf], &cfg);
+    let (mut par_s, mut seq_s) = (0.0, 0.0);
+    for &v in &views {
+        let t0 = Instant::now();
+        ks.observe(&seq.images[v], &seq.poses[v]);
+        seq_s += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        kp.observe(&seq.images[v], &seq.poses[v]);
+        par_s += t0.elapsed().as_secs_f64();
+    }
+    let per_view = |t: f64| t * 1e3 / views.len() as f64;
+    eprintln!(
+        "wall time per observe: sequential {:.1} ms, parallel ({} rayon threads) {:.1} ms",
+        per_view(seq_s),
+        rayon::current_num_threads(),
+        per_view(par_s)
+    );
+    assert_eq!(kp.map(), map, "parallel and sequential maps differ");
+
     assert!(e.points >= 3000, "{} points", e.points);
+    assert!(e.p90 <= 0.05, "p90 relative error {}", e.p90);
     assert!(e.median <= 0.03, "median relative error {}", e.median);
     assert!(e.outliers <= 0.10, "outlier fraction {}", e.outliers);
+}
+
+#[test]
+fn propagated_keyframe_converges_with_fewer_views() {
+    let seq = render_sequence();
+    let n = seq.images.len();
+    let cfg = SemidenseConfig::default();
+    let kf1 = n / 2;
+    let (k1, _) = build(&seq, kf1, &views_around(kf1, 9, n), &cfg, None);
+    let map1 = k1.map();
+    // The next keyframe, 6 frames (~0.4 m) later: seeded with 2 views vs. plain with 3.
+    let kf2 = kf1 + 6;
+    let order = views_around(kf2, 9, n);
+    let (seeded, ms_seeded) = build(&seq, kf2, &order[..2], &cfg, Some(&map1));
+    let (plain2, _) = build(&seq, kf2, &order[..2], &cfg, None);
+    let (plain3, ms_plain) = build(&seq, kf2, &order[..3], &cfg, None);
+    let d = &seq.depths[kf2];
+    let (es, ep2, ep3) = (
+        errors(&seeded.map(), d),
+        errors(&plain2.map(), d),
+        errors(&plain3.map(), d),
+    );
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    eprintln!(
+        "keyframe {kf2}: seeded from keyframe {kf1} ({} points) + 2 views: {} points, median {:.2} %, \
+         outliers {:.2} % ({:.2} % allowing 1 px), {:.1} ms/view; plain, 2 views: {} points; plain, 3 views: {} points, \
+         median {:.2} %, outliers {:.2} %, {:.1} ms/view",
+        map1.points.len(),
+        es.points,
+        es.median * 100.0,
+        es.outliers * 100.0,
+        es.outliers_3x3 * 100.0,
+        mean(&ms_seeded),
+        ep2.points,
+        ep3.points,
+        ep3.median * 100.0,
+        ep3.outliers * 100.0,
+        mean(&ms_plain),
+    );
+    // Two views alone never make a point (3 votes needed); the prior is the third.
+    assert_eq!(ep2.points, 0);
+    assert!(es.points >= 2000, "{} seeded points", es.points);
+    assert!(
+        es.points > ep3.points,
+        "{} seeded vs {} plain",
+        es.points,
+        ep3.points
+    );
+    assert!(es.median <= 0.03 && es.outliers <= 0.10);
 }

@@ -121,6 +121,9 @@ pub(crate) fn to_pixel(cam: &CameraModel, n: &Vector2<f64>) -> (Vector2<f64>, Ma
 /// border pixel can be unprojected.
 pub(crate) fn normalised_footprint(cam: &CameraModel) -> Option<[f64; 4]> {
     let (w, h) = (cam.width, cam.height);
+    if w == 0 || h == 0 {
+        return None;
+    }
     let mut b = [
         f64::INFINITY,
         f64::NEG_INFINITY,
@@ -129,11 +132,12 @@ pub(crate) fn normalised_footprint(cam: &CameraModel) -> Option<[f64; 4]> {
     ];
     let mut any = false;
     let mut add = |u: usize, v: usize| {
-        if let Some(r) = cam.unproject(&Vector2::new(u as f64, v as f64)) {
-            if r.x.is_finite() && r.y.is_finite() {
-                b = [b[0].min(r.x), b[1].max(r.x), b[2].min(r.y), b[3].max(r.y)];
-                any = true;
-            }
+        if let Some(r) = cam.unproject(&Vector2::new(u as f64, v as f64))
+            && r.x.is_finite()
+            && r.y.is_finite()
+        {
+            b = [b[0].min(r.x), b[1].max(r.x), b[2].min(r.y), b[3].max(r.y)];
+            any = true;
         }
     };
     for u in 0..w {

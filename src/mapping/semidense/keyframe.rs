@@ -344,6 +344,8 @@ impl SemidenseKeyframe {
             footprint: self.footprint,
             global_width_m_inv: g_hi - g_lo,
             min_parallax_px: self.cfg.min_parallax_px as f64,
+            baseline_m: geometry.t_view_kf.norm(),
+            max_baseline_depth_ratio: self.cfg.max_baseline_depth_ratio as f64,
             min_cos: self.cfg.min_gradient_epipolar_cos,
             max_patch_rms: self.cfg.max_patch_rms,
             min_second_best_ratio: self.cfg.min_second_best_ratio,
@@ -378,6 +380,7 @@ impl SemidenseKeyframe {
                 }
                 Outcome::OutOfView => s.out_of_view = 1,
                 Outcome::LowParallax => s.low_parallax = 1,
+                Outcome::WideBaseline => s.wide_baseline = 1,
                 Outcome::GradientParallel => s.gradient_parallel = 1,
                 Outcome::Photometric => (s.searched, s.photometric) = (1, 1),
                 Outcome::Ambiguous => (s.searched, s.ambiguous) = (1, 1),

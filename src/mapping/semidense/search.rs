@@ -11,17 +11,17 @@ use nalgebra::{Matrix2, Vector2};
 const HALF: i32 = 3;
 const PATCH: usize = 49;
 /// The distorted epipolar curve is evaluated exactly every this many pixels, straight between.
-const KNOT_PX: f64 = 8.0;
+const KNOT_PX: f64 = 16.0;
 /// Longest walk, px (longer than any image diagonal the mapper is meant for).
 const MAX_WALK_PX: f64 = 4000.0;
-/// Gauss–Newton steps of the sub-pixel refinement.
-const GN_STEPS: usize = 2;
 /// The second scan minimum is checked with the full template only if its 5-sample cost is below
 /// this factor times the best one's (or times the noise floor, gray levels², if that is larger).
 const SECOND_SCAN_RATIO: f32 = 4.0;
 const SCAN_NOISE_FLOOR: f32 = 50.0;
-/// Scan window extension beyond the range ends, px (the 5-sample window's half-width + 1).
-const SCAN_MARGIN_PX: f64 = 3.0;
+/// Scan extension beyond the range ends, px: the 5-sample window's half-width plus 3 px, so that a
+/// minimum at a range end is still an interior minimum of the scan (the refined match must then
+/// lie within the range, give or take 2σ).
+const SCAN_MARGIN_PX: f64 = 5.0;
 
 /// What the search of one pixel in one view gave.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -29,6 +29,7 @@ pub(crate) enum Outcome {
     Matched(Estimate),
     OutOfView,
     LowParallax,
+    WideBaseline,
     GradientParallel,
     Photometric,
     Ambiguous,
@@ -45,6 +46,9 @@ pub(crate) struct ViewContext<'a> {
     /// Width of the global inverse-depth range, 1/m.
     pub global_width_m_inv: f64,
     pub min_parallax_px: f64,
+    /// `|t_view_kf|`, m, and the largest accepted baseline / depth.
+    pub baseline_m: f64,
+    pub max_baseline_depth_ratio: f64,
     pub min_cos: f32,
     pub max_patch_rms: f32,
     pub min_second_best_ratio: f32,
@@ -186,6 +190,9 @@ impl Minima {
 pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f64) -> Outcome {
     let cam = ctx.camera;
     let line = ctx.geometry.line(&kp.ray);
+    if ctx.baseline_m * lo > ctx.max_baseline_depth_ratio {
+        return Outcome::WideBaseline;
+    }
     let Some((lo, hi)) = line.front_range(lo, hi) else {
         return Outcome::OutOfView;
     };
@@ -292,12 +299,14 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     let mut w = [0.0f32; 5];
     let mut ws = [0.0f64; 3];
     let mut filled = 0usize; // consecutive valid samples
-    let (mut c_prev2, mut c_prev, mut s_prev) = (f32::INFINITY, f32::INFINITY, 0.0f64);
+    let (mut c_prev2, mut c_prev) = (f32::INFINITY, f32::INFINITY);
+    let (mut s_prev2, mut s_prev) = (0.0f64, 0.0f64);
     let mut minima = Minima([(f32::INFINITY, f64::NAN); 2]);
     let mut s_k = s_a;
     let mut u_k = pix(s_k);
     let mut off = 0.0f32;
-    for seg in 0..n_seg {
+    let mut steps_left = MAX_WALK_PX as usize;
+    'walk: for seg in 0..n_seg {
         let s_k1 = if seg + 1 == n_seg {
             s_b
         } else {
@@ -309,15 +318,15 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         let inv_len = 1.0 / len;
         let (stx, sty, sts) = (ddx * inv_len, ddy * inv_len, (s_k1 - s_k) * inv_len as f64);
         while off < len {
+            if steps_left == 0 {
+                break 'walk; // only a wildly distorting camera gets here
+            }
+            steps_left -= 1;
             let (ux, uy) = (u_k[0] + off * stx, u_k[1] + off * sty);
             let s = s_k + off as f64 * sts;
             off += 1.0;
             if !(ux >= 0.0 && uy >= 0.0 && ux < x_lim && uy < y_lim) {
                 filled = 0;
-                // a gap ends a run of costs: its last one may be a minimum
-                if c_prev <= c_prev2 {
-                    minima.push(c_prev, s_prev);
-                }
                 (c_prev2, c_prev) = (f32::INFINITY, f32::INFINITY);
                 continue;
             }
@@ -332,21 +341,30 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             let svv = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + w[3] * w[3] + w[4] * w[4];
             let svt = w[0] * t5[0] + w[1] * t5[1] + w[2] * t5[2] + w[3] * t5[3] + w[4] * t5[4];
             let c = svv - sv * sv * 0.2 - 2.0 * svt + st5;
-            if c_prev <= c_prev2 && c_prev < c {
-                minima.push(c_prev, s_prev);
+            // Only interior minima: one at the end of the scan (or of a gap) may continue outside
+            // the range, and then the match is elsewhere. (Tested first: beating the second best,
+            // rarely true once the scan is under way, so the branch predicts well.)
+            if c_prev < minima.0[1].0 && c_prev <= c_prev2 && c_prev < c && c_prev2 < f32::INFINITY
+            {
+                // sub-sample position from the parabola through the three costs
+                let den = c_prev2 - 2.0 * c_prev + c;
+                let d = if den > 0.0 {
+                    (0.5 * (c_prev2 - c) / den).clamp(-0.5, 0.5)
+                } else {
+                    0.0
+                };
+                minima.push(c_prev, s_prev + d as f64 * 0.5 * (ws[0] - s_prev2));
             }
             // the window's centre sample was taken 2 steps ago
-            (c_prev2, c_prev, s_prev) = (c_prev, c, ws[0]);
+            (c_prev2, c_prev) = (c_prev, c);
+            (s_prev2, s_prev) = (s_prev, ws[0]);
         }
         off -= len;
         s_k = s_k1;
         u_k = u_k1;
     }
-    if c_prev <= c_prev2 {
-        minima.push(c_prev, s_prev);
-    }
     if !minima.0[0].0.is_finite() {
-        return Outcome::OutOfView;
+        return Outcome::OutOfRange;
     }
 
     // Full 7x7 check (eq. 28) of the best minimum, with the Gauss–Newton terms of the refinement;
@@ -364,49 +382,41 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         .map(|(c, g, h)| (c, g, h, ut.norm()))
     };
     let [(_, s1), (c2_scan, s2)] = minima.0;
-    let first = gn_at(s1);
     let check_second = c2_scan <= SECOND_SCAN_RATIO * minima.0[0].0.max(SCAN_NOISE_FLOOR);
-    let second = if check_second { gn_at(s2) } else { None };
-    let (mut s, mut gn, other) = match (first, second) {
-        (Some(a), Some(b)) if b.0 < a.0 => (s2, b, Some(a.0)),
-        (Some(a), b) => (s1, a, b.map(|b| b.0)),
-        (None, Some(b)) => (s2, b, None),
+    let first = gn_at(s1);
+    let second = if check_second {
+        patch_cost(ctx.image, pix(s2), &af, &t7)
+    } else {
+        None
+    };
+    let (s, gn, other) = match (first, second) {
+        (Some(a), Some(b)) if b < a.0 => match gn_at(s2) {
+            Some(g) => (s2, g, Some(a.0)),
+            None => (s1, a, Some(b)),
+        },
+        (Some(a), b) => (s1, a, b),
+        (None, Some(_)) => match gn_at(s2) {
+            Some(g) => (s2, g, None),
+            None => return Outcome::OutOfView,
+        },
         (None, None) => return Outcome::OutOfView,
     };
-    if let Some(o) = other {
-        if o < ctx.min_second_best_ratio * gn.0 {
-            return Outcome::Ambiguous;
-        }
+    if other.is_some_and(|o| o < ctx.min_second_best_ratio * gn.0) {
+        return Outcome::Ambiguous;
     }
 
-    // Sub-pixel: Gauss–Newton on the curve parameter, keeping the best evaluated point.
-    let s_int = s;
+    // Sub-pixel: one Gauss–Newton step on the curve parameter (the scan's parabola already starts
+    // it within a fraction of a pixel), at most 1 px; the cost after it is the quadratic model's
+    // `c + 2 g δ + h δ²`, which saves a patch evaluation per match.
     let (mut best_c, mut best_s) = (gn.0, s);
-    for it in 0..GN_STEPS {
-        let (_, g, h, ut_norm) = gn;
-        if !(h > 0.0) {
-            break;
-        }
+    let (c0, g, h, ut_norm) = gn;
+    if h > 0.0 && ut_norm > 0.0 {
         let step_px = (-(g / h) as f64 * ut_norm).clamp(-1.0, 1.0);
-        if step_px.abs() < 0.01 {
-            break;
+        let d = (step_px / ut_norm) as f32;
+        let predicted = c0 + 2.0 * g * d + h * d * d;
+        if predicted < c0 {
+            (best_c, best_s) = (predicted, s + step_px / ut_norm);
         }
-        s += step_px / ut_norm;
-        if ((s - s_int) * ut_norm).abs() > 2.0 {
-            break;
-        }
-        let next = if it + 1 == GN_STEPS {
-            patch_cost(ctx.image, pix(s), &af, &t7).map(|c| (c, 0.0, 0.0, ut_norm))
-        } else {
-            gn_at(s)
-        };
-        let Some(next) = next else {
-            break;
-        };
-        if next.0 < best_c {
-            (best_c, best_s) = (next.0, s);
-        }
-        gn = next;
     }
     let rms = (best_c.max(0.0) / PATCH as f32).sqrt();
     if !(rms <= ctx.max_patch_rms) {

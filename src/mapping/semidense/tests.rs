@@ -1,0 +1,381 @@
+//! Unit tests of the whole mapper on a textured plane rendered in code, and on degenerate input.
+
+use super::*;
+use crate::image::Image;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
+
+/// EuRoC cam0 at half resolution (376x240), with its distortion.
+fn camera() -> CameraModel {
+    CameraModel::euroc_cam0().scaled_to_level(1)
+}
+
+/// Smooth value noise in [0, 1] on a lattice of `cell` metres.
+fn value_noise(a: f64, b: f64, cell: f64, seed: u64) -> f64 {
+    let hash = |i: i64, j: i64| {
+        let mut h = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ seed.wrapping_mul(0x1656_67B1_9E37_79F9);
+        h ^= h >> 29;
+        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h ^= h >> 32;
+        (h >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (x, y) = (a / cell, b / cell);
+    let (i, j) = (x.floor() as i64, y.floor() as i64);
+    let s = |t: f64| t * t * (3.0 - 2.0 * t);
+    let (fx, fy) = (s(x - i as f64), s(y - j as f64));
+    let top = hash(i, j) + fx * (hash(i + 1, j) - hash(i, j));
+    let bot = hash(i, j + 1) + fx * (hash(i + 1, j + 1) - hash(i, j + 1));
+    top + fy * (bot - top)
+}
+
+/// A textured plane `n · X = dist` in the world.
+struct Plane {
+    n: Vector3<f64>,
+    dist: f64,
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+}
+
+impl Plane {
+    fn new(n: Vector3<f64>, dist: f64) -> Self {
+        let n = n.normalize();
+        let e1 = n.cross(&Vector3::y()).normalize();
+        let e2 = n.cross(&e1);
+        Plane { n, dist, e1, e2 }
+    }
+
+    /// Ray parameter of `o + λ d` on the plane.
+    fn hit(&self, o: &Vector3<f64>, d: &Vector3<f64>) -> f64 {
+        (self.dist - self.n.dot(o)) / self.n.dot(d)
+    }
+
+    fn texture(&self, p: &Vector3<f64>) -> f64 {
+        let (a, b) = (p.dot(&self.e1), p.dot(&self.e2));
+        40.0 + 110.0 * value_noise(a, b, 0.05, 1) + 70.0 * value_noise(a, b, 0.013, 2)
+    }
+
+    /// Renders the plane seen from `t_world_cam` (2x2 supersampling), gray levels `gain·I + offset`.
+    fn render(
+        &self,
+        cam: &CameraModel,
+        t_world_cam: &Isometry3<f64>,
+        gain: f64,
+        offset: f64,
+    ) -> Image<f32> {
+        let o = t_world_cam.translation.vector;
+        Image::from_fn(cam.width, cam.height, |x, y| {
+            let mut sum = 0.0;
+            for (dx, dy) in [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)] {
+                let ray = cam
+                    .unproject(&Vector2::new(x as f64 + dx, y as f64 + dy))
+                    .expect("unproject");
+                let d = t_world_cam.rotation * ray;
+                sum += self.texture(&(o + d * self.hit(&o, &d)));
+            }
+            (gain * sum / 4.0 + offset) as f32
+        })
+    }
+
+    /// True inverse depth (1/z in the camera) at pixel `(u, v)`.
+    fn inv_depth(&self, cam: &CameraModel, t_world_cam: &Isometry3<f64>, u: f64, v: f64) -> f64 {
+        let ray = cam.unproject(&Vector2::new(u, v)).unwrap();
+        let o = t_world_cam.translation.vector;
+        let d = t_world_cam.rotation * ray;
+        // ray has z = 1 in the camera, so λ is the z-depth
+        1.0 / self.hit(&o, &d)
+    }
+}
+
+/// Camera poses: keyframe at the origin looking along world z, views moving sideways and a bit
+/// forward with small rotations.
+fn pose(k: i32) -> Isometry3<f64> {
+    let k = k as f64;
+    Isometry3::from_parts(
+        Translation3::new(0.03 * k, 0.008 * k, 0.01 * k.abs()),
+        UnitQuaternion::from_euler_angles(0.004 * k, -0.006 * k, 0.01 * k),
+    )
+}
+
+fn scene() -> Plane {
+    // 2.5 m in front, slanted about 15° and 8°.
+    Plane::new(Vector3::new(0.25, -0.14, 1.0), 2.5)
+}
+
+fn relative_errors(plane: &Plane, map: &SemidenseMap) -> Vec<f64> {
+    let mut e: Vec<f64> = map
+        .points
+        .iter()
+        .map(|p| {
+            let want = plane.inv_depth(&map.camera, &map.t_world_cam, p.u_px as f64, p.v_px as f64);
+            (p.inv_depth_m_inv as f64 - want).abs() / want
+        })
+        .collect();
+    e.sort_by(f64::total_cmp);
+    e
+}
+
+#[test]
+fn textured_plane_inverse_depth_is_recovered() {
+    let cam = camera();
+    let plane = scene();
+    let cfg = SemidenseConfig::default();
+    let kf_pose = pose(0);
+    let mut kf = SemidenseKeyframe::new(
+        &plane.render(&cam, &kf_pose, 1.0, 0.0),
+        &cam,
+        &kf_pose,
+        &cfg,
+    );
+    assert!(
+        kf.num_candidates() > 5000,
+        "{} candidates",
+        kf.num_candidates()
+    );
+    for (i, k) in [1, -1, 2, -2, 3, -3].into_iter().enumerate() {
+        // brightness changes between views (auto exposure)
+        let (gain, offset) = (1.0 + 0.03 * k as f64, 4.0 * i as f64);
+        let s = kf.observe(&plane.render(&cam, &pose(k), gain, offset), &pose(k));
+        assert_eq!(s.skipped, None);
+        assert!(s.matched > s.candidates / 3, "view {k}: {s:?}");
+    }
+    let map = kf.map();
+    let e = relative_errors(&plane, &map);
+    let (median, p90) = (e[e.len() / 2], e[e.len() * 9 / 10]);
+    assert!(map.points.len() > 3000, "{} points", map.points.len());
+    assert!(median < 0.005 && p90 < 0.02, "median {median}, p90 {p90}");
+    for p in &map.points {
+        assert!(p.num_views >= 2 && p.inv_depth_std_m_inv > 0.0);
+        assert_eq!(p.u_px.fract(), 0.0);
+    }
+}
+
+#[test]
+fn propagation_seeds_the_next_keyframe() {
+    let cam = camera();
+    let plane = scene();
+    let cfg = SemidenseConfig::default();
+    let mut kf = SemidenseKeyframe::new(
+        &plane.render(&cam, &pose(0), 1.0, 0.0),
+        &cam,
+        &pose(0),
+        &cfg,
+    );
+    for k in [1, -1, 2, -2, 3, -3] {
+        kf.observe(&plane.render(&cam, &pose(k), 1.0, 0.0), &pose(k));
+    }
+    let map = kf.map();
+    // The next keyframe at pose 2, with two views: only the seeded one has points.
+    let kf2_pose = pose(2);
+    let kf2_image = plane.render(&cam, &kf2_pose, 1.0, 0.0);
+    let views = [5, -1].map(|k| (plane.render(&cam, &pose(k), 1.0, 0.0), pose(k)));
+    let mut plain = SemidenseKeyframe::new(&kf2_image, &cam, &kf2_pose, &cfg);
+    let mut seeded = plain.clone();
+    let n_seeded = seeded.propagate_from(&map);
+    assert!(
+        n_seeded > map.points.len() / 2,
+        "{n_seeded} seeded of {}",
+        map.points.len()
+    );
+    for (img, p) in &views {
+        plain.observe(img, p);
+        seeded.observe(img, p);
+    }
+    assert_eq!(plain.map().points.len(), 0);
+    let m2 = seeded.map();
+    assert!(m2.points.len() > 2000, "{} points", m2.points.len());
+    let e = relative_errors(&plane, &m2);
+    assert!(e[e.len() / 2] < 0.005, "median {}", e[e.len() / 2]);
+}
+
+#[test]
+fn degenerate_input_never_panics() {
+    let cam = camera();
+    let plane = scene();
+    let cfg = SemidenseConfig::default();
+    let img = plane.render(&cam, &pose(0), 1.0, 0.0);
+    let nan_pose = Isometry3::from_parts(
+        Translation3::new(f64::NAN, 0.0, 0.0),
+        UnitQuaternion::identity(),
+    );
+
+    // NaN keyframe pose: nothing to do, everything reported.
+    let mut kf = SemidenseKeyframe::new(&img, &cam, &nan_pose, &cfg);
+    assert_eq!(
+        kf.observe(&img, &pose(1)).skipped,
+        Some(ViewSkip::NonFinitePose)
+    );
+    assert!(kf.map().points.is_empty());
+    assert_eq!(kf.propagate_from(&kf.map()), 0);
+
+    let mut kf = SemidenseKeyframe::new(&img, &cam, &pose(0), &cfg);
+    let n = kf.num_candidates();
+    assert!(n > 0);
+    // NaN view pose, zero baseline, wrong image size.
+    assert_eq!(
+        kf.observe(&img, &nan_pose).skipped,
+        Some(ViewSkip::NonFinitePose)
+    );
+    let s = kf.observe(&img, &pose(0));
+    assert_eq!((s.skipped, s.candidates), (Some(ViewSkip::NoBaseline), n));
+    let small = Image::new(10, 10);
+    assert_eq!(
+        kf.observe(&small, &pose(1)).skipped,
+        Some(ViewSkip::ImageSizeMismatch)
+    );
+    // Pure rotation about the optical centre (baseline 1 nm): no parallax anywhere.
+    let rot = Isometry3::from_parts(
+        Translation3::new(1e-9, 0.0, 0.0),
+        UnitQuaternion::from_euler_angles(0.0, 0.02, 0.0),
+    );
+    let s = kf.observe(&img, &rot);
+    assert_eq!(s.matched, 0, "{s:?}");
+    // A view looking the other way: nothing projects.
+    let away = Isometry3::from_parts(
+        Translation3::new(0.1, 0.0, 0.0),
+        UnitQuaternion::from_euler_angles(0.0, std::f64::consts::PI, 0.0),
+    );
+    let s = kf.observe(&img, &away);
+    assert_eq!(s.matched, 0, "{s:?}");
+    assert_eq!(
+        s.out_of_view + s.low_parallax + s.gradient_parallel,
+        n,
+        "{s:?}"
+    );
+    // A view far to the side: no overlap.
+    let aside = Isometry3::translation(50.0, 0.0, 0.0);
+    assert_eq!(kf.observe(&img, &aside).matched, 0);
+    // Garbage image values and garbage ranges.
+    let nan_img = Image::from_fn(cam.width, cam.height, |x, _| {
+        if x % 3 == 0 { f32::NAN } else { 1e30 }
+    });
+    kf.observe(&nan_img, &pose(1));
+    let mut k = SemidenseKeyframe::new(&nan_img, &cam, &pose(0), &cfg);
+    k.observe(&img, &pose(1));
+    k.observe(&nan_img, &pose(2));
+    k.map();
+    kf.set_inv_depth_range(f64::NAN, 1.0);
+    kf.set_inv_depth_range(2.0, 1.0);
+    kf.set_inv_depth_range(-1.0, 1.0);
+    assert_eq!(
+        kf.inv_depth_range(),
+        (cfg.min_inv_depth_m_inv, cfg.max_inv_depth_m_inv)
+    );
+    kf.set_inv_depth_range(0.0, 1.0);
+    assert_eq!(kf.inv_depth_range(), (0.0, 1.0));
+    kf.observe(&img, &pose(1));
+    // Garbage map points.
+    let bad = SemidenseMap {
+        t_world_cam: pose(1),
+        camera: cam,
+        points: vec![
+            MapPoint {
+                u_px: f32::NAN,
+                v_px: 3.0,
+                inv_depth_m_inv: 1.0,
+                inv_depth_std_m_inv: 0.1,
+                num_views: 3,
+            },
+            MapPoint {
+                u_px: 10.0,
+                v_px: 10.0,
+                inv_depth_m_inv: -1.0,
+                inv_depth_std_m_inv: f32::INFINITY,
+                num_views: 3,
+            },
+            MapPoint {
+                u_px: 1e9,
+                v_px: -1e9,
+                inv_depth_m_inv: 1e-30,
+                inv_depth_std_m_inv: 0.0,
+                num_views: 0,
+            },
+        ],
+    };
+    kf.propagate_from(&bad);
+    kf.map();
+
+    // Tiny images, a size mismatch at construction, a constant image, a broken camera.
+    for (w, h) in [(0, 0), (0, 5), (1, 1), (5, 5), (12, 9)] {
+        let c = CameraModel {
+            width: w,
+            height: h,
+            ..cam
+        };
+        let mut k = SemidenseKeyframe::new(&Image::new(w, h), &c, &pose(0), &cfg);
+        assert_eq!(k.num_candidates(), 0);
+        assert_eq!(k.observe(&Image::new(w, h), &pose(1)).matched, 0);
+        assert!(k.map().points.is_empty());
+    }
+    let k = SemidenseKeyframe::new(&small, &cam, &pose(0), &cfg);
+    assert_eq!(k.num_candidates(), 0);
+    let flat = Image::from_fn(cam.width, cam.height, |_, _| 100.0f32);
+    assert_eq!(
+        SemidenseKeyframe::new(&flat, &cam, &pose(0), &cfg).num_candidates(),
+        0
+    );
+    let broken = CameraModel {
+        fx: f64::NAN,
+        ..cam
+    };
+    let mut k = SemidenseKeyframe::new(&img, &broken, &pose(0), &cfg);
+    assert_eq!(k.num_candidates(), 0);
+    assert!(k.observe(&img, &pose(1)).skipped.is_some());
+}
+
+#[test]
+fn candidate_cap_is_respected() {
+    let cam = camera();
+    let img = scene().render(&cam, &pose(0), 1.0, 0.0);
+    let cfg = SemidenseConfig {
+        max_candidates: 1000,
+        ..Default::default()
+    };
+    let kf = SemidenseKeyframe::new(&img, &cam, &pose(0), &cfg);
+    assert!(
+        (900..=1000).contains(&kf.num_candidates()),
+        "{}",
+        kf.num_candidates()
+    );
+}
+
+#[test]
+fn map_points_lie_on_the_plane_in_3d() {
+    // Independent check of the conventions: back-project the points with the public camera API.
+    let cam = camera();
+    let plane = scene();
+    let cfg = SemidenseConfig::default();
+    let kf_pose = Isometry3::from_parts(
+        Translation3::new(0.1, -0.05, 0.2),
+        UnitQuaternion::from_euler_angles(0.02, 0.03, -0.05),
+    );
+    let mut kf = SemidenseKeyframe::new(
+        &plane.render(&cam, &kf_pose, 1.0, 0.0),
+        &cam,
+        &kf_pose,
+        &cfg,
+    );
+    for k in [1, -1, 2, -2, 3, -3] {
+        let p = kf_pose * pose(k);
+        kf.observe(&plane.render(&cam, &p, 1.0, 0.0), &p);
+    }
+    let map = kf.map();
+    assert!(map.points.len() > 2000);
+    let mut d: Vec<f64> = map
+        .points
+        .iter()
+        .map(|p| {
+            let ray = cam
+                .unproject(&Vector2::new(p.u_px as f64, p.v_px as f64))
+                .unwrap();
+            let x = map.t_world_cam * Point3::from(ray / p.inv_depth_m_inv as f64);
+            (plane.n.dot(&x.coords) - plane.dist).abs()
+        })
+        .collect();
+    d.sort_by(f64::total_cmp);
+    assert!(
+        d[d.len() / 2] < 0.01,
+        "median distance to the plane {} m",
+        d[d.len() / 2]
+    );
+}
