@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, FrameRecord, GroundTruth};
 use vidslam::image::Image;
 use vidslam::imu::{FrameState, ImuBias, Matrix15, NavState, Preintegration};
-use vidslam::runtime::{ReplayOptions, replay, trajectory};
+use vidslam::runtime::{DepthSource, ReplayOptions, replay, trajectory};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::tracking::{
     FlagReason, Keyframe, Tracker, TrackerConfig, depth_points_from_map, pose_of,
@@ -229,7 +229,10 @@ fn a_black_frame_is_flagged_and_the_state_stays_finite() {
 #[test]
 fn short_replay_is_accurate_deterministic_and_better_than_the_imu_alone() {
     let dir = dataset();
-    let opts = ReplayOptions::default();
+    let opts = ReplayOptions {
+        depth: DepthSource::GroundTruth,
+        ..Default::default()
+    };
     let a = replay(&dir, &opts, &mut |_, _| {}).unwrap();
     let b = replay(&dir, &opts, &mut |_, _| {}).unwrap();
     let (ta, tb) = (trajectory(&a), trajectory(&b));

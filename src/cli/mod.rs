@@ -1,6 +1,7 @@
 //! The `vidslam` command line: one subcommand per module here.
 
 pub mod camera;
+pub mod config;
 pub mod dataset;
 pub mod demo;
 pub mod eval;
@@ -38,6 +39,8 @@ pub enum Command {
     Camera(camera::CameraArgs),
     /// Run the odometry over a recorded dataset; write the trajectory and an accuracy report.
     Replay(replay::ReplayArgs),
+    /// Print the effective configuration (defaults, or a file completed with them).
+    Config(config::ConfigArgs),
 }
 
 /// Runs the parsed command line.
@@ -51,5 +54,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Mavlink(a) => mavlink::run(a),
         Command::Camera(args) => camera::run(args),
         Command::Replay(a) => replay::run(a),
+        Command::Config(a) => config::run(a),
     }
 }
