@@ -444,22 +444,7 @@ impl Odometry {
     }
 
     fn imu_only_result(&self, t: TimeNs) -> TrackResult {
-        TrackResult {
-            t,
-            state: *self.tracker.state(),
-            covariance: *self.tracker.covariance(),
-            log_gain: 0.0,
-            offset_gray: 0.0,
-            flag: None,
-            iterations: [0; NUM_LEVELS],
-            inlier_ratio: 0.0,
-            overlap: 0.0,
-            residual_rms_gray: f64::NAN,
-            imu_chi2: 0.0,
-            keyframe_id: None,
-            wants_keyframe: false,
-            time_s: 0.0,
-        }
+        self.tracker.untracked_result(t)
     }
 
     fn next_seq(&mut self) -> u64 {

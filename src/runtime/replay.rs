@@ -377,22 +377,14 @@ fn start_state(gt: &GroundTruth, t: TimeNs) -> Result<FrameState, ReplayError> {
     })
 }
 
+/// The first frame: its start state, a keyframe wanted.
 fn first_result(t: TimeNs, tracker: &Tracker) -> TrackResult {
     TrackResult {
-        t,
-        state: *tracker.state(),
-        covariance: *tracker.covariance(),
-        log_gain: 0.0,
-        offset_gray: 0.0,
-        flag: None,
-        iterations: [0; crate::tracking::NUM_LEVELS],
         inlier_ratio: 1.0,
         overlap: 1.0,
         residual_rms_gray: 0.0,
-        imu_chi2: 0.0,
-        keyframe_id: None,
         wants_keyframe: true,
-        time_s: 0.0,
+        ..tracker.untracked_result(t)
     }
 }
 

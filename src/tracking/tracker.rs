@@ -170,6 +170,27 @@ impl Tracker {
         pose_of(&self.state) * self.t_body_cam
     }
 
+    /// A result for frame `t` that was not tracked: the current state and covariance, no
+    /// photometric figures.
+    pub fn untracked_result(&self, t: TimeNs) -> TrackResult {
+        TrackResult {
+            t,
+            state: self.state,
+            covariance: self.cov,
+            log_gain: self.log_gain,
+            offset_gray: self.offset_gray,
+            flag: None,
+            iterations: [0; NUM_LEVELS],
+            inlier_ratio: 0.0,
+            overlap: 0.0,
+            residual_rms_gray: f64::NAN,
+            imu_chi2: 0.0,
+            keyframe_id: self.keyframe.as_ref().map(|k| k.id),
+            wants_keyframe: false,
+            time_s: 0.0,
+        }
+    }
+
     /// Loads an image as the current frame without tracking it (the first frame).
     pub fn load_frame(&mut self, image: &Image<u8>) {
         self.frame.fill_from_u8(image);
@@ -218,20 +239,8 @@ impl Tracker {
             .map(|c| c.inverse())
             .unwrap_or_else(|| Matrix15::identity() * 1e12);
         let mut res = TrackResult {
-            t,
             state: x_pred,
-            covariance: self.cov,
-            log_gain: self.log_gain,
-            offset_gray: self.offset_gray,
-            flag: None,
-            iterations: [0; NUM_LEVELS],
-            inlier_ratio: 0.0,
-            overlap: 0.0,
-            residual_rms_gray: f64::NAN,
-            imu_chi2: 0.0,
-            keyframe_id: self.keyframe.as_ref().map(|k| k.id),
-            wants_keyframe: false,
-            time_s: 0.0,
+            ..self.untracked_result(t)
         };
 
         let vision = self.cfg.use_vision && self.keyframe.is_some();
