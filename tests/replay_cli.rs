@@ -11,6 +11,21 @@ fn vidslam(args: &[&str]) -> std::process::Output {
         .expect("run vidslam")
 }
 
+/// `vidslam replay DATA --depth gt --out OUT --quiet` plus `extra`.
+fn replay_gt(data: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "replay",
+        data.to_str().unwrap(),
+        "--depth",
+        "gt",
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    vidslam(&args)
+}
+
 fn text(o: &std::process::Output) -> String {
     format!(
         "{}{}",
@@ -36,15 +51,7 @@ fn replay_writes_trajectory_report_csv_and_plot() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
     let out = tmp.join("out");
-    let o = vidslam(&[
-        "replay",
-        data.to_str().unwrap(),
-        "--depth",
-        "gt",
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]);
+    let o = replay_gt(&data, &out, &[]);
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
     assert!(
@@ -85,17 +92,7 @@ fn replay_writes_trajectory_report_csv_and_plot() {
     // A config key that does not exist: the error names the file, the line and the key.
     let cfg = tmp.join("bad.toml");
     std::fs::write(&cfg, "[tracking]\nhuber_gray = 9.0\nhubber_gray = 3.0\n").unwrap();
-    let o = vidslam(&[
-        "replay",
-        data.to_str().unwrap(),
-        "--depth",
-        "gt",
-        "--out",
-        out.to_str().unwrap(),
-        "--config",
-        cfg.to_str().unwrap(),
-        "--quiet",
-    ]);
+    let o = replay_gt(&data, &out, &["--config", cfg.to_str().unwrap()]);
     let t = text(&o);
     assert!(!o.status.success());
     assert!(
@@ -105,16 +102,33 @@ fn replay_writes_trajectory_report_csv_and_plot() {
 
     // No ground-truth depth for a keyframe: named.
     std::fs::remove_dir_all(data.join("mav0/depth0")).unwrap();
-    let o = vidslam(&[
-        "replay",
-        data.to_str().unwrap(),
-        "--depth",
-        "gt",
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]);
+    let o = replay_gt(&data, &out, &[]);
     let t = text(&o);
     assert!(!o.status.success() && t.contains("depth0"), "{t}");
     let _ = std::fs::remove_dir_all(Path::new(&tmp));
+}
+
+#[test]
+fn config_prints_every_table_and_checks_files() {
+    let o = vidslam(&["config"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = String::from_utf8_lossy(&o.stdout).to_string();
+    for table in [
+        "[tracking]",
+        "[mapping]",
+        "[static_detector]",
+        "[bootstrap]",
+    ] {
+        assert!(t.contains(table), "missing {table} in\n{t}");
+    }
+    let bad = std::env::temp_dir().join(format!("vidslam-config-{}.toml", std::process::id()));
+    std::fs::write(&bad, "[bootstrap]\nmin_initial_points = -3\n").unwrap();
+    let o = vidslam(&["config", "--config", bad.to_str().unwrap()]);
+    let t = text(&o);
+    assert!(!o.status.success() && t.contains("line 2"), "{t}");
+    let _ = std::fs::remove_file(&bad);
+    for cmd in ["demo", "replay", "config"] {
+        let o = vidslam(&[cmd, "--help"]);
+        assert!(o.status.success(), "{cmd} --help");
+    }
 }
