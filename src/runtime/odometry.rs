@@ -19,7 +19,8 @@
 //!   as in the bootstrap, and the reset is counted.
 //!
 //! # Determinism
-//! In offline mode every job's snapshot is awaited at the next frame (a lag of one frame), so a
+//! In offline mode every job's snapshot is awaited a fixed number of frames later
+//! (`offline_lag_frames`; mapping of one frame overlaps tracking of the next), so a
 //! replay gives the same poses every time. In real-time mode the tracking thread never waits: jobs
 //! that do not fit the queue are dropped and snapshots are taken when they arrive.
 
@@ -77,6 +78,9 @@ pub struct BootstrapConfig {
     pub min_texture_points: usize,
     /// Rebuild the tracking keyframe from a refined map at most every this many frames.
     pub refresh_every_frames: u32,
+    /// Offline replays use a job's snapshot this many frames after sending it (1: the mapper
+    /// and the tracker take turns; 2: the mapper works on a frame while the next is tracked).
+    pub offline_lag_frames: u64,
     /// Queue length of the mapping thread's job and snapshot channels.
     pub queue_len: usize,
     /// Seed each new keyframe with the previous keyframe's map (DPPTAM's propagation).
@@ -99,6 +103,7 @@ impl Default for BootstrapConfig {
             lost_after_frames: 3,
             min_texture_points: 1500,
             refresh_every_frames: 2,
+            offline_lag_frames: 2,
             queue_len: 8,
             propagate_maps: true,
         }
@@ -183,7 +188,9 @@ pub struct Odometry {
     phase: Phase,
     last_t: Option<TimeNs>,
     seq: u64,
-    awaited: Option<u64>,
+    /// Offline: jobs sent, as (frame number, seq), whose snapshots are still to be awaited.
+    awaited: VecDeque<(u64, u64)>,
+    frame_number: u64,
     tracking_kf: Option<u32>,
     newest_kf: Option<u32>,
     next_kf_id: u32,
@@ -224,7 +231,8 @@ impl Odometry {
             phase: Phase::WaitingForStart,
             last_t: None,
             seq: 0,
-            awaited: None,
+            awaited: VecDeque::new(),
+            frame_number: 0,
             tracking_kf: None,
             newest_kf: None,
             next_kf_id: 0,
@@ -276,6 +284,7 @@ impl Odometry {
 
     /// Processes the frame at `t` (all IMU samples up to at least `t` pushed first).
     pub fn push_frame(&mut self, t: TimeNs, image: Image<u8>) -> OdometryFrame {
+        self.frame_number += 1;
         self.collect_snapshots();
         let image = Arc::new(image);
         let static_now = self.detector.is_static();
@@ -460,7 +469,7 @@ impl Odometry {
                 self.stats.jobs_dropped += 1;
             }
         } else if m.jobs.send(job).is_ok() {
-            self.awaited = Some(seq);
+            self.awaited.push_back((self.frame_number, seq));
         }
     }
 
@@ -488,22 +497,35 @@ impl Odometry {
         self.send(MapJob::Observe { seq, frame });
     }
 
-    /// Takes the mapper's snapshots: offline, waits for the last job's; real-time, whatever has
-    /// arrived. Installs or refreshes the tracking keyframe.
+    /// Takes the mapper's snapshots: offline, exactly those of the jobs sent at least
+    /// `offline_lag_frames` frames ago (waiting for them); real-time, whatever has arrived.
+    /// Installs or refreshes the tracking keyframe.
     fn collect_snapshots(&mut self) {
         let mut latest: Option<MapSnapshot> = None;
+        let lag = self.cfg.bootstrap.offline_lag_frames.max(1);
         if let Some(m) = &self.mapping {
-            if let Some(want) = self.awaited.take() {
-                while let Ok(s) = m.snapshots.recv() {
-                    let done = s.seq >= want;
+            if self.cfg.realtime {
+                while let Ok(s) = m.snapshots.try_recv() {
                     latest = Some(s);
-                    if done {
-                        break;
+                }
+            } else {
+                let mut want = None;
+                while self
+                    .awaited
+                    .front()
+                    .is_some_and(|(f, _)| f + lag <= self.frame_number)
+                {
+                    want = self.awaited.pop_front().map(|(_, seq)| seq);
+                }
+                if let Some(want) = want {
+                    while let Ok(s) = m.snapshots.recv() {
+                        let done = s.seq >= want;
+                        latest = Some(s);
+                        if done {
+                            break;
+                        }
                     }
                 }
-            }
-            while let Ok(s) = m.snapshots.try_recv() {
-                latest = Some(s);
             }
         }
         if let Some(s) = latest {

@@ -49,6 +49,7 @@ pub struct ReplayReport {
     /// Mapper jobs dropped (real-time mode).
     pub mapping_jobs_dropped: usize,
     /// Mapping-thread time per job, ms.
+    pub mapping_ms_mean: f64,
     pub mapping_ms_p50: f64,
     pub mapping_ms_p99: f64,
     /// Semidense points over all keyframes.
@@ -134,6 +135,11 @@ impl ReplayReport {
             },
             resets: out.resets,
             mapping_jobs_dropped: out.jobs_dropped,
+            mapping_ms_mean: if map_ms.is_empty() {
+                0.0
+            } else {
+                map_ms.iter().sum::<f64>() / map_ms.len() as f64
+            },
             mapping_ms_p50: percentile(&map_ms, 50.0),
             mapping_ms_p99: percentile(&map_ms, 99.0),
             semidense_points: out
@@ -227,8 +233,11 @@ impl ReplayReport {
             row(
                 "semidense",
                 format!(
-                    "{} points, mapping ms p50/p99 {:.1} / {:.1}",
-                    self.semidense_points, self.mapping_ms_p50, self.mapping_ms_p99
+                    "{} points, mapping ms mean/p50/p99 {:.1} / {:.1} / {:.1}",
+                    self.semidense_points,
+                    self.mapping_ms_mean,
+                    self.mapping_ms_p50,
+                    self.mapping_ms_p99
                 ),
             );
         }
