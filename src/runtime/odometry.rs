@@ -173,7 +173,6 @@ pub struct OdometryStats {
     pub resets: u32,
     pub keyframes: usize,
     pub jobs_dropped: usize,
-    pub imu_rejected: u64,
 }
 
 /// The odometry of one camera + IMU rig.
@@ -184,7 +183,6 @@ pub struct Odometry {
     detector: StaticDetector,
     mapping: Option<MappingThread>,
     imu: VecDeque<ImuSample>,
-    imu_scratch: Vec<ImuSample>,
     phase: Phase,
     last_t: Option<TimeNs>,
     seq: u64,
@@ -227,7 +225,6 @@ impl Odometry {
             detector,
             mapping: Some(mapping),
             imu: VecDeque::with_capacity(4096),
-            imu_scratch: Vec::with_capacity(4096),
             phase: Phase::WaitingForStart,
             last_t: None,
             seq: 0,
@@ -443,11 +440,8 @@ impl Odometry {
     fn track(&mut self, t: TimeNs, image: &Image<u8>) -> TrackResult {
         let t0 = self.last_t.unwrap_or(t);
         let mut pre = Preintegration::new(t0, self.tracker.state().bias);
-        self.imu_scratch.clear();
-        let a = self.imu.partition_point(|s| s.t < t0).saturating_sub(1);
-        let b = (self.imu.partition_point(|s| s.t <= t) + 1).min(self.imu.len());
-        self.imu_scratch.extend(self.imu.range(a..b));
-        pre.integrate(&self.imu_scratch, t, Some(&self.rig.noise));
+        // `integrate` finds the samples bracketing the interval itself.
+        pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
         self.last_t = Some(t);
         self.tracker.track(t, image, &pre)
     }

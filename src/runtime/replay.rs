@@ -10,7 +10,7 @@ use super::mapping_worker::MappingOutput;
 use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, Phase, Rig};
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
 use crate::imu::static_init::StaticDetectorConfig;
-use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
+use crate::imu::{FrameState, ImuBias, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::SemidenseConfig;
 use crate::time::TimeNs;
 use crate::tracking::{
@@ -319,7 +319,7 @@ fn replay_gt_depth(
             first_result(rec.t, &tracker)
         } else {
             let mut pre = Preintegration::new(prev_t, tracker.state().bias);
-            pre.integrate(imu_window(&imu, prev_t, rec.t), rec.t, Some(&ds.imu.noise));
+            pre.integrate(&imu, rec.t, Some(&ds.imu.noise));
             tracker.track(rec.t, &img, &pre)
         };
         let need_kf = k == 0 || result.wants_keyframe;
@@ -335,13 +335,6 @@ fn replay_gt_depth(
         progress(k + 1, span.len());
     }
     Ok(out)
-}
-
-/// The IMU samples bracketing `[t0, t1]` (one before and one after, when they exist).
-pub fn imu_window(imu: &[ImuSample], t0: TimeNs, t1: TimeNs) -> &[ImuSample] {
-    let a = imu.partition_point(|s| s.t < t0).saturating_sub(1);
-    let b = (imu.partition_point(|s| s.t <= t1) + 1).min(imu.len());
-    &imu[a..b]
 }
 
 fn start_state(gt: &GroundTruth, t: TimeNs) -> Result<FrameState, ReplayError> {
