@@ -10,7 +10,7 @@ use super::mapping_worker::MappingOutput;
 use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, Phase, Rig};
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
 use crate::imu::static_init::StaticDetectorConfig;
-use crate::imu::{FrameState, ImuBias, Matrix15, NavState, Preintegration};
+use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::SemidenseConfig;
 use crate::time::TimeNs;
 use crate::tracking::{
@@ -156,6 +156,53 @@ pub fn replay(
     }
 }
 
+/// What a replay reads: the IMU, and the frames to replay — from the first frame after the
+/// first IMU sample (and, if `gt` is given, with ground truth at it) for at most `max_seconds`,
+/// while the IMU covers them.
+struct ReplayInput {
+    imu: Vec<ImuSample>,
+    span: Vec<FrameRecord>,
+    /// Time of the first frame replayed.
+    t0: TimeNs,
+}
+
+impl ReplayInput {
+    fn read(
+        ds: &AslDataset,
+        gt: Option<&GroundTruth>,
+        max_seconds: Option<f64>,
+    ) -> Result<Self, ReplayError> {
+        let imu = read_imu_csv(&ds.mav0().join("imu0/data.csv"))?;
+        let (Some(imu_first), Some(imu_last)) = (imu.first(), imu.last()) else {
+            return Err(ReplayError::Input(format!(
+                "{}: no IMU samples",
+                ds.mav0().join("imu0/data.csv").display()
+            )));
+        };
+        let (first_t, last_t) = (imu_first.t, imu_last.t);
+        let frames: Vec<FrameRecord> = ds.frames()?.collect::<Result<_, _>>()?;
+        let start = frames
+            .iter()
+            .position(|f| f.t > first_t && gt.is_none_or(|g| g.nearest(f.t, 5_000_000).is_some()))
+            .ok_or_else(|| {
+                ReplayError::Input(
+                    "no frame has IMU data before it (and ground truth at it, where needed)".into(),
+                )
+            })?;
+        let t0 = frames[start].t;
+        let end_t = max_seconds
+            .map(|s| t0.add_ns((s * 1e9).round() as i64))
+            .unwrap_or(TimeNs(i64::MAX))
+            .min(last_t);
+        let span = frames
+            .into_iter()
+            .skip(start)
+            .take_while(|f| f.t <= end_t)
+            .collect();
+        Ok(ReplayInput { imu, span, t0 })
+    }
+}
+
 /// The full odometry (semidense mapping thread, rest detection, bootstrap).
 fn replay_full(
     dir: &Path,
@@ -163,14 +210,6 @@ fn replay_full(
     progress: Progress,
 ) -> Result<ReplayOutput, ReplayError> {
     let ds = AslDataset::open(dir)?;
-    let imu = read_imu_csv(&ds.mav0().join("imu0/data.csv"))?;
-    let frames: Vec<FrameRecord> = ds.frames()?.collect::<Result<_, _>>()?;
-    let Some(imu_first) = imu.first() else {
-        return Err(ReplayError::Input(format!(
-            "{}: no IMU samples",
-            ds.mav0().join("imu0/data.csv").display()
-        )));
-    };
     let gt = match opts.start {
         StartMode::GroundTruth => Some(ds.ground_truth()?.ok_or_else(|| {
             ReplayError::Input(format!(
@@ -180,24 +219,7 @@ fn replay_full(
         })?),
         StartMode::Static => None,
     };
-    let start = frames
-        .iter()
-        .position(|f| {
-            f.t > imu_first.t
-                && gt
-                    .as_ref()
-                    .is_none_or(|g| g.nearest(f.t, 5_000_000).is_some())
-        })
-        .ok_or_else(|| ReplayError::Input("no frame after the first IMU sample".into()))?;
-    let t0 = frames[start].t;
-    let end_t = opts
-        .max_seconds
-        .map(|s| t0.add_ns((s * 1e9).round() as i64))
-        .unwrap_or(TimeNs(i64::MAX));
-    let span: Vec<&FrameRecord> = frames[start..]
-        .iter()
-        .take_while(|f| f.t <= end_t && imu.last().is_some_and(|l| l.t >= f.t))
-        .collect();
+    let ReplayInput { imu, span, t0 } = ReplayInput::read(&ds, gt.as_ref(), opts.max_seconds)?;
     let cfg = OdometryConfig {
         tracking: opts.tracker.clone(),
         mapping: opts.mapping.clone(),
@@ -269,31 +291,7 @@ fn replay_gt_depth(
             ds.mav0().display()
         ))
     })?;
-    let imu = read_imu_csv(&ds.mav0().join("imu0/data.csv"))?;
-    let frames: Vec<FrameRecord> = ds.frames()?.collect::<Result<_, _>>()?;
-    let (Some(imu_first), Some(imu_last)) = (imu.first(), imu.last()) else {
-        return Err(ReplayError::Input(format!(
-            "{}: no IMU samples",
-            ds.mav0().join("imu0/data.csv").display()
-        )));
-    };
-    // First frame with IMU before it and ground truth at it.
-    let start = frames
-        .iter()
-        .position(|f| f.t > imu_first.t && gt.nearest(f.t, 5_000_000).is_some())
-        .ok_or_else(|| {
-            ReplayError::Input("no frame has both IMU data before it and ground truth".into())
-        })?;
-    let t0 = frames[start].t;
-    let end_t = opts
-        .max_seconds
-        .map(|s| t0.add_ns((s * 1e9).round() as i64))
-        .unwrap_or(TimeNs(i64::MAX))
-        .min(imu_last.t);
-    let span: Vec<&FrameRecord> = frames[start..]
-        .iter()
-        .take_while(|f| f.t <= end_t)
-        .collect();
+    let ReplayInput { imu, span, t0 } = ReplayInput::read(&ds, Some(&gt), opts.max_seconds)?;
 
     let state0 = start_state(&gt, t0)?;
     let cam = ds.camera.model;
