@@ -1,7 +1,7 @@
 //! vidslam: tightly-coupled monocular visual-inertial direct SLAM (Concha et al., ICRA 2016).
 //!
 //! Layers, each importing only from the ones before it in this list:
-//! `time`, `geometry` → `image` → `camera`, `imu` → `dataset` → `eval`, `sim` → `tracking`,
+//! `time`, `geometry` → `image` → `camera`, `imu` → `smoother`, `dataset` → `eval`, `sim` → `tracking`,
 //! `mapping` → `runtime`, `output` → `cli` (the driver crates under `drivers/` sit below all of them).
 //! Frame and naming conventions are documented once in [`geometry`].
 
@@ -16,5 +16,6 @@ pub mod mapping;
 pub mod output;
 pub mod runtime;
 pub mod sim;
+pub mod smoother;
 pub mod time;
 pub mod tracking;

@@ -81,6 +81,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         mapping: cfg.mapping.clone(),
         static_detector: cfg.static_detector,
         bootstrap: cfg.bootstrap.clone(),
+        window: cfg.window.clone(),
         depth: match a.depth {
             DepthArg::Gt => DepthSource::GroundTruth,
             DepthArg::Semidense => DepthSource::Semidense,

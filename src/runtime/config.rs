@@ -4,6 +4,7 @@
 use super::odometry::BootstrapConfig;
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::mapping::semidense::SemidenseConfig;
+use crate::smoother::WindowConfig;
 use crate::tracking::TrackerConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -20,6 +21,8 @@ pub struct Config {
     pub static_detector: StaticDetectorConfig,
     /// `[bootstrap]`: first map and loss recovery.
     pub bootstrap: BootstrapConfig,
+    /// `[window]`: the keyframe window (IMU between keyframes, relative poses from tracking).
+    pub window: WindowConfig,
 }
 
 #[derive(Debug, thiserror::Error)]

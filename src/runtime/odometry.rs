@@ -30,9 +30,10 @@ use crate::image::{Image, Pyramid};
 use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEvent};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::SemidenseConfig;
+use crate::smoother::{KeyframeWindow, RelativePose, WindowConfig};
 use crate::time::TimeNs;
 use crate::tracking::{
-    DepthPoint, FlagReason, Keyframe, NUM_LEVELS, TrackResult, Tracker, TrackerConfig,
+    DepthPoint, FlagReason, Keyframe, NUM_LEVELS, TrackResult, Tracker, TrackerConfig, pose_of,
     select_gradient_pixels,
 };
 use nalgebra::{Isometry3, Vector3};
@@ -85,6 +86,10 @@ pub struct BootstrapConfig {
     pub queue_len: usize,
     /// Seed each new keyframe with the previous keyframe's map (DPPTAM's propagation).
     pub propagate_maps: bool,
+    /// Prior standard deviation of the accelerometer bias when motion starts, m/s².
+    pub rest_accel_bias_std_m_s2: f64,
+    /// Lower bound of the prior standard deviation of the tilt from the rest period, rad.
+    pub rest_min_tilt_std_rad: f64,
 }
 
 impl Default for BootstrapConfig {
@@ -106,6 +111,8 @@ impl Default for BootstrapConfig {
             offline_lag_frames: 2,
             queue_len: 8,
             propagate_maps: true,
+            rest_accel_bias_std_m_s2: 0.1,
+            rest_min_tilt_std_rad: 1e-3,
         }
     }
 }
@@ -159,6 +166,7 @@ pub struct OdometryConfig {
     pub mapping: SemidenseConfig,
     pub static_detector: StaticDetectorConfig,
     pub bootstrap: BootstrapConfig,
+    pub window: WindowConfig,
     /// Real-time mode: never wait for the mapper (non-deterministic).
     pub realtime: bool,
 }
@@ -202,6 +210,14 @@ pub struct Odometry {
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
     stats: OdometryStats,
+    /// Keyframe states joined by the IMU and by tracked relative poses.
+    window: KeyframeWindow,
+    /// Poses sent to the mapper are `mapper_from_world · T_world_cam`: the mapper's world is
+    /// chained through the keyframes' *relative* poses, so the window's corrections never make a
+    /// keyframe's views inconsistent with its pose in the mapper.
+    mapper_from_world: Isometry3<f64>,
+    /// Camera pose of the newest keyframe as the mapper holds it.
+    mapper_kf_pose: Option<(u32, Isometry3<f64>)>,
 }
 
 impl Odometry {
@@ -241,6 +257,9 @@ impl Odometry {
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats::default(),
+            window: KeyframeWindow::new(cfg.window.clone(), rig.noise),
+            mapper_from_world: Isometry3::identity(),
+            mapper_kf_pose: None,
             cfg,
             rig,
         }
@@ -318,6 +337,10 @@ impl Odometry {
                     }
                 }
                 if let Some(kf) = self.static_frames.pop_back() {
+                    let mut x = *self.tracker.state();
+                    x.nav.t = kf.t;
+                    let cov = *self.tracker.covariance();
+                    self.window.reset(self.next_kf_id, x, &cov);
                     self.start_keyframe(kf, Vec::new(), false);
                 }
                 self.static_frames.clear();
@@ -341,6 +364,7 @@ impl Odometry {
                 if self.newest_kf.is_none() || t.secs_since(started) > self.cfg.bootstrap.max_init_s
                 {
                     // Not enough structure yet: restart the first map from here.
+                    self.reset_window();
                     self.start_keyframe(frame.clone(), Vec::new(), false);
                     self.init_started = Some(t);
                 } else {
@@ -365,9 +389,16 @@ impl Odometry {
                     && self.newest_kf == self.tracking_kf
                 {
                     // (A keyframe already pending in the mapper is awaited, not replaced.)
+                    let mut frame = frame.clone();
+                    if let Some(c) = self.window_keyframe(&mut result) {
+                        frame.t_world_cam = c * frame.t_world_cam;
+                        for h in self.history.iter_mut() {
+                            h.t_world_cam = c * h.t_world_cam;
+                        }
+                    }
                     let history: Vec<MapFrame> = self.history.iter().cloned().collect();
                     let propagate = self.cfg.bootstrap.propagate_maps;
-                    self.start_keyframe(frame.clone(), history, propagate);
+                    self.start_keyframe(frame, history, propagate);
                 } else if result.flag.is_none() {
                     self.observe(frame.clone());
                 }
@@ -376,6 +407,7 @@ impl Odometry {
                 let textured =
                     select_gradient_pixels(self.tracker.frame_pyramid(), &self.cfg.tracking).len();
                 if textured >= self.cfg.bootstrap.min_texture_points {
+                    self.reset_window();
                     self.start_keyframe(frame.clone(), Vec::new(), false);
                     self.phase = Phase::Initializing;
                     self.init_started = Some(t);
@@ -383,6 +415,10 @@ impl Odometry {
             }
         }
         if self.phase == Phase::Tracking && result.flag.is_none() {
+            let frame = MapFrame {
+                t_world_cam: self.tracker.t_world_cam(),
+                ..frame
+            };
             self.history.push_front(frame);
             self.history.truncate(self.cfg.bootstrap.history_frames);
         }
@@ -421,7 +457,11 @@ impl Odometry {
             }
             None => *self.tracker.state(),
         };
-        let cov = static_covariance(est.map_or(0.01, |e| e.tilt_sigma_rad));
+        let b = &self.cfg.bootstrap;
+        let tilt = est
+            .map_or(0.01, |e| e.tilt_sigma_rad)
+            .max(b.rest_min_tilt_std_rad);
+        let cov = static_covariance(tilt, b.rest_accel_bias_std_m_s2);
         self.tracker.reset_state(x, cov);
         self.tracker.load_frame(image);
         self.last_t = Some(t);
@@ -446,6 +486,67 @@ impl Odometry {
         self.tracker.track(t, image, &pre)
     }
 
+    /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
+    /// state and covariance.
+    fn reset_window(&mut self) {
+        let x = *self.tracker.state();
+        let cov = *self.tracker.covariance();
+        self.window.reset(self.next_kf_id, x, &cov);
+    }
+
+    /// Adds the frame of `result` (about to become keyframe `next_kf_id`) to the window, joined to
+    /// the keyframe it was tracked against, solves, and moves the tracker's keyframe and state onto
+    /// the solution. Returns the world correction applied to the current frame
+    /// (`T_new = C · T_old`), `None` if the window is off or could not be used.
+    fn window_keyframe(&mut self, result: &mut TrackResult) -> Option<Isometry3<f64>> {
+        let id = self.next_kf_id;
+        if !self.cfg.window.enabled {
+            return None;
+        }
+        let t = result.t;
+        let Some((newest, x_prev)) = self.window.newest().map(|(i, x)| (i, *x)) else {
+            self.reset_window();
+            return None;
+        };
+        let buffered_from = self.imu.front().map(|s| s.t);
+        if buffered_from.is_none_or(|t0| t0 > x_prev.nav.t) {
+            // The IMU since the last keyframe is no longer buffered: restart the window here.
+            self.reset_window();
+            return None;
+        }
+        let mut pre = Preintegration::new(x_prev.nav.t, x_prev.bias);
+        pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
+        let visual = match self.tracker.keyframe() {
+            Some(kf) if Some(newest) == self.tracking_kf && kf.id == newest => {
+                let t_w_bk = kf.t_world_cam * self.rig.t_body_cam.inverse();
+                Some(RelativePose {
+                    t_i_j: t_w_bk.inverse() * pose_of(&result.state),
+                    information: result.photometric_info,
+                })
+            }
+            _ => None,
+        };
+        let old = result.state;
+        self.window.push(id, old, pre, visual);
+        self.window.solve();
+        let (_, x_new) = self.window.newest()?;
+        let mut x_new = *x_new;
+        x_new.nav.t = t;
+        if !state_is_finite(&x_new) {
+            self.reset_window();
+            return None;
+        }
+        let correction = pose_of(&x_new) * pose_of(&old).inverse();
+        let cov = *self.tracker.covariance();
+        self.tracker.reset_state(x_new, cov);
+        if let Some(xk) = self.window.state(newest) {
+            self.tracker
+                .set_keyframe_pose(pose_of(xk) * self.rig.t_body_cam);
+        }
+        result.state = x_new;
+        Some(correction)
+    }
+
     fn imu_only_result(&self, t: TimeNs) -> TrackResult {
         self.tracker.untracked_result(t)
     }
@@ -468,7 +569,27 @@ impl Odometry {
     }
 
     fn start_keyframe(&mut self, frame: MapFrame, history: Vec<MapFrame>, propagate: bool) {
+        // Chain the mapper's world through the previous keyframe's corrected pose.
+        if let Some((prev, m_prev)) = self.mapper_kf_pose
+            && let Some(x) = self.window.state(prev)
+        {
+            let p_prev = pose_of(x) * self.rig.t_body_cam;
+            self.mapper_from_world = m_prev * p_prev.inverse();
+        }
+        let d = self.mapper_from_world;
+        let frame = MapFrame {
+            t_world_cam: d * frame.t_world_cam,
+            ..frame
+        };
+        let history = history
+            .into_iter()
+            .map(|h| MapFrame {
+                t_world_cam: d * h.t_world_cam,
+                ..h
+            })
+            .collect();
         let id = self.next_kf_id;
+        self.mapper_kf_pose = Some((id, frame.t_world_cam));
         self.next_kf_id += 1;
         self.newest_kf = Some(id);
         self.stats.keyframes += 1;
@@ -487,6 +608,10 @@ impl Odometry {
     }
 
     fn observe(&mut self, frame: MapFrame) {
+        let frame = MapFrame {
+            t_world_cam: self.mapper_from_world * frame.t_world_cam,
+            ..frame
+        };
         let seq = self.next_seq();
         self.send(MapJob::Observe { seq, frame });
     }
@@ -547,8 +672,9 @@ impl Odometry {
                     let m = depths.len() / 2;
                     *depths.select_nth_unstable_by(m, f32::total_cmp).1 as f64
                 };
+                let kf_world = self.mapper_from_world.inverse() * s.map.t_world_cam;
                 let baseline_m = (self.tracker.t_world_cam().translation.vector
-                    - s.map.t_world_cam.translation.vector)
+                    - kf_world.translation.vector)
                     .norm();
                 n >= self.cfg.bootstrap.min_initial_points
                     && baseline_m >= self.cfg.bootstrap.min_init_baseline_ratio * median_depth_m
@@ -585,7 +711,7 @@ impl Odometry {
             s.keyframe_t,
             pyr,
             &self.rig.camera,
-            s.map.t_world_cam,
+            self.mapper_from_world.inverse() * s.map.t_world_cam,
             &pts,
             &self.cfg.tracking,
         );
@@ -602,6 +728,14 @@ impl Odometry {
             }
         }
     }
+}
+
+fn state_is_finite(x: &FrameState) -> bool {
+    x.nav.p_world_m.iter().all(|v| v.is_finite())
+        && x.nav.v_world_m_s.iter().all(|v| v.is_finite())
+        && x.nav.r_world_body.coords.iter().all(|v| v.is_finite())
+        && x.bias.gyro_rad_s.iter().all(|v| v.is_finite())
+        && x.bias.accel_m_s2.iter().all(|v| v.is_finite())
 }
 
 /// At rest at the origin with attitude `r_world_body` and gyro bias `bg`.
@@ -626,11 +760,17 @@ fn rest_state(
 
 /// Covariance of the held rest state: position and velocity known (the pad is the origin), tilt
 /// from the rest estimate, yaw free-ish, gyro bias well known, accelerometer bias not observed.
-fn static_covariance(tilt_sigma_rad: f64) -> Matrix15 {
+///
+/// Tilt and the accelerometer bias across gravity are confounded at rest (only their combination
+/// `R_wbᵀ g_up + b_a` is measured). A correlated prior that says exactly that was tried: it lets
+/// the keyframe window swing the tilt by 2° when the first keyframes' relative poses disagree with
+/// the IMU, and lost on both the demo and S-V101, so the diagonal prior stays.
+fn static_covariance(tilt_sigma_rad: f64, accel_bias_std_m_s2: f64) -> Matrix15 {
     let tilt = tilt_sigma_rad.max(1e-3);
+    let ba = accel_bias_std_m_s2;
     // [θx, θy, θz (yaw), p, v, bω, ba]
     let s = [
-        tilt, tilt, 0.01, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 0.1, 0.1, 0.1,
+        tilt, tilt, 0.01, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, ba, ba, ba,
     ];
     Matrix15::from_fn(|a, b| if a == b { s[a] * s[a] } else { 0.0 })
 }

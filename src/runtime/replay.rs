@@ -12,6 +12,7 @@ use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_im
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::SemidenseConfig;
+use crate::smoother::WindowConfig;
 use crate::time::TimeNs;
 use crate::tracking::{
     Keyframe, TrackResult, Tracker, TrackerConfig, depth_points_from_map, select_gradient_pixels,
@@ -45,6 +46,7 @@ pub struct ReplayOptions {
     pub mapping: SemidenseConfig,
     pub static_detector: StaticDetectorConfig,
     pub bootstrap: BootstrapConfig,
+    pub window: WindowConfig,
     pub depth: DepthSource,
     pub start: StartMode,
     /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
@@ -99,6 +101,7 @@ impl Default for ReplayOptions {
             mapping: SemidenseConfig::default(),
             static_detector: StaticDetectorConfig::default(),
             bootstrap: BootstrapConfig::default(),
+            window: WindowConfig::default(),
             depth: DepthSource::Semidense,
             start: StartMode::Static,
             realtime: false,
@@ -225,6 +228,7 @@ fn replay_full(
         mapping: opts.mapping.clone(),
         static_detector: opts.static_detector,
         bootstrap: opts.bootstrap.clone(),
+        window: opts.window.clone(),
         realtime: opts.realtime,
     };
     let rig = Rig {

@@ -32,7 +32,7 @@ use crate::imu::{
     imu_residual_covariance,
 };
 use crate::time::TimeNs;
-use nalgebra::{Isometry3, SMatrix, SVector};
+use nalgebra::{Isometry3, Matrix6, SMatrix, SVector};
 use std::time::Instant;
 
 /// Why a frame's visual-inertial solution was not trusted. The frame's state is then the IMU
@@ -88,6 +88,10 @@ pub struct TrackResult {
     pub residual_rms_gray: f64,
     /// `rᵀ A r` of the IMU residual at the solution (15 dof).
     pub imu_chi2: f64,
+    /// Information of the photometric term alone on frame j's pose increment `[δθ, δt]` (body
+    /// frame, eq. 34/36) relative to the keyframe, brightness marginalised; zero if untracked.
+    /// The keyframe window uses it for the relative pose keyframe → frame.
+    pub photometric_info: Matrix6<f64>,
     /// Keyframe tracked against.
     pub keyframe_id: Option<u32>,
     /// The keyframe policy asks for a new keyframe at this frame.
@@ -99,6 +103,8 @@ pub struct TrackResult {
 /// One evaluation of the joint problem at a state.
 struct Evaluation {
     sys: BlockSystem<8, 9>,
+    /// The photometric part of `sys.h_pp` (with the brightness prior).
+    h_ph: SMatrix<f64, 8, 8>,
     cost: f64,
     ph: Option<PhotometricSystem>,
     r_imu: Vector15,
@@ -185,6 +191,7 @@ impl Tracker {
             overlap: 0.0,
             residual_rms_gray: f64::NAN,
             imu_chi2: 0.0,
+            photometric_info: Matrix6::zeros(),
             keyframe_id: self.keyframe.as_ref().map(|k| k.id),
             wants_keyframe: false,
             time_s: 0.0,
@@ -210,6 +217,13 @@ impl Tracker {
             self.offset_gray = 0.0;
         }
         self.keyframe = Some(kf);
+    }
+
+    /// Moves the keyframe tracked against to `t_world_cam` (the keyframe window corrected it).
+    pub fn set_keyframe_pose(&mut self, t_world_cam: Isometry3<f64>) {
+        if let Some(kf) = &mut self.keyframe {
+            kf.t_world_cam = t_world_cam;
+        }
     }
 
     /// Drops the keyframe (tracking loss): frames are IMU-only until a new one is set.
@@ -376,6 +390,7 @@ impl Tracker {
             res.flag = Some(FlagReason::ImuInconsistent);
             return None;
         }
+        res.photometric_info = pose_information(&fin.h_ph);
         let Some(cov) = marginal_covariance(&fin.sys) else {
             res.flag = Some(FlagReason::SolverFailed);
             return None;
@@ -411,6 +426,7 @@ impl Tracker {
         sigma2: f64,
     ) -> Evaluation {
         let mut sys = BlockSystem::<8, 9>::zeros();
+        let mut h_ph = SMatrix::<f64, 8, 8>::zeros();
         let mut cost = 0.0;
         let mut ph_out = None;
         if let (Some(level), Some(kf)) = (photometric_level, &self.keyframe) {
@@ -451,6 +467,7 @@ impl Tracker {
             sys.b_p[6] -= wa * ea;
             sys.b_p[7] -= wb * eb;
             cost += 0.5 * (wa * ea * ea + wb * eb * eb);
+            h_ph = sys.h_pp;
         } else {
             // No photometric term: keep the brightness block regular.
             sys.h_pp[(6, 6)] = 1.0;
@@ -482,6 +499,7 @@ impl Tracker {
         }
         Evaluation {
             sys,
+            h_ph,
             cost,
             ph: ph_out,
             r_imu: r,
@@ -519,6 +537,20 @@ fn apply(
     d.fixed_rows_mut::<6>(0).copy_from(&dp.fixed_rows::<6>(0));
     d.fixed_rows_mut::<9>(6).copy_from(di);
     (x.boxplus(&d), (aff.0 + dp[6], aff.1 + dp[7]))
+}
+
+/// The pose block of an 8x8 `[pose, α, β]` information with the brightness marginalised (Schur).
+fn pose_information(h: &SMatrix<f64, 8, 8>) -> Matrix6<f64> {
+    let hpp = h.fixed_view::<6, 6>(0, 0).into_owned();
+    let hpa = h.fixed_view::<6, 2>(0, 6).into_owned();
+    let haa = h.fixed_view::<2, 2>(6, 6).into_owned();
+    match haa.try_inverse() {
+        Some(inv) => {
+            let m = hpp - hpa * inv * hpa.transpose();
+            (m + m.transpose()) * 0.5
+        }
+        None => hpp,
+    }
 }
 
 /// Covariance of the 15-state from the joint Hessian (inverse of the full 17x17, brightness
