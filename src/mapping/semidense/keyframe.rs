@@ -1,7 +1,9 @@
 //! [`SemidenseKeyframe`]: candidates, per-pixel estimates, observe / propagate / map.
 
 use super::epipolar::{ViewGeometry, normalised_footprint, to_pixel};
-use super::fusion::{Estimate, Run, consistent_run};
+use super::fusion::{
+    Cover, CoversMut, Estimate, Run, append_cover, covers_from_scratch, run_from_covers,
+};
 use super::search::{KeyframePixel, Outcome, ViewContext, search_pixel};
 use super::{MapPoint, ObserveStats, SemidenseConfig, SemidenseMap, ViewSkip};
 use crate::camera::CameraModel;
@@ -34,7 +36,12 @@ struct PixelState {
     /// Views in which the epipolar curve was scanned.
     searches: u8,
     estimates: [Estimate; MAX_ESTIMATES],
+    /// How many estimates (and their total weight) cover the left end of `estimates[i]`'s
+    /// interval (fusion module's `Cover`, kept apart to keep the state small).
+    cover_votes: [u8; MAX_ESTIMATES],
+    cover_weight: [f32; MAX_ESTIMATES],
     prior: Option<Estimate>,
+    prior_cover: Cover,
     run: Run,
 }
 
@@ -46,24 +53,61 @@ impl PixelState {
             rho: 0.0,
             sigma: 0.0,
         }; MAX_ESTIMATES],
+        cover_votes: [0; MAX_ESTIMATES],
+        cover_weight: [0.0; MAX_ESTIMATES],
         prior: None,
+        prior_cover: Cover {
+            votes: 0,
+            weight: 0.0,
+        },
         run: Run::EMPTY,
     };
 
-    fn update_run(&mut self, cfg: &SemidenseConfig) {
-        self.run = consistent_run(
-            &self.estimates[..self.count as usize],
+    /// Recomputes the covers (O(n²)) and the run.
+    fn refuse(&mut self, cfg: &SemidenseConfig) {
+        let n = self.count as usize;
+        self.prior_cover = covers_from_scratch(
+            &self.estimates[..n],
             self.prior,
+            cfg.consistency_sigmas,
+            CoversMut {
+                votes: &mut self.cover_votes[..n],
+                weight: &mut self.cover_weight[..n],
+            },
+        );
+        self.update_run(cfg);
+    }
+
+    fn update_run(&mut self, cfg: &SemidenseConfig) {
+        let n = self.count as usize;
+        self.run = run_from_covers(
+            &self.estimates[..n],
+            &self.cover_votes[..n],
+            &self.cover_weight[..n],
+            self.prior,
+            self.prior_cover,
             cfg.consistency_sigmas,
             cfg.search_sigmas,
         );
     }
 
-    fn insert(&mut self, e: Estimate) {
+    /// Adds an estimate and updates the run (eq. 27 over the consistent run).
+    fn insert(&mut self, e: Estimate, cfg: &SemidenseConfig) {
         let n = self.count as usize;
         if n < MAX_ESTIMATES {
             self.estimates[n] = e;
             self.count += 1;
+            append_cover(
+                &self.estimates[..=n],
+                self.prior,
+                cfg.consistency_sigmas,
+                CoversMut {
+                    votes: &mut self.cover_votes[..=n],
+                    weight: &mut self.cover_weight[..=n],
+                },
+                &mut self.prior_cover,
+            );
+            self.update_run(cfg);
         } else if let Some(worst) = self
             .estimates
             .iter_mut()
@@ -71,6 +115,7 @@ impl PixelState {
             .filter(|w| w.sigma > e.sigma)
         {
             *worst = e;
+            self.refuse(cfg);
         }
     }
 }
@@ -307,7 +352,7 @@ impl SemidenseKeyframe {
         let mut seeded = 0;
         for (st, d) in self.states.iter_mut().zip(&dist) {
             if d.is_finite() {
-                st.update_run(&self.cfg);
+                st.refuse(&self.cfg);
                 seeded += 1;
             }
         }
@@ -375,8 +420,7 @@ impl SemidenseKeyframe {
                 Outcome::Matched(e) => {
                     s.searched = 1;
                     s.matched = 1;
-                    st.insert(e);
-                    st.update_run(cfg);
+                    st.insert(e, cfg);
                 }
                 Outcome::OutOfView => s.out_of_view = 1,
                 Outcome::LowParallax => s.low_parallax = 1,
