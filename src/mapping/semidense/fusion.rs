@@ -266,10 +266,9 @@ mod tests {
             e(0.503, 0.004),
             e(0.81, 0.02),
         ];
-        let mk = |v: &'_ mut [u8], w: &'_ mut [f32]| CoversMut {
-            votes: v,
-            weight: w,
-        };
+        fn mk<'a>(votes: &'a mut [u8], weight: &'a mut [f32]) -> CoversMut<'a> {
+            CoversMut { votes, weight }
+        }
         for prior in [None, Some(e(0.5, 0.03)), Some(e(0.79, 0.05))] {
             let (mut v, mut w) = ([0u8; 7], [0.0f32; 7]);
             let mut pc = covers_from_scratch(&[], prior, 2.0, mk(&mut [], &mut []));
