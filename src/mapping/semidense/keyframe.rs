@@ -398,10 +398,28 @@ impl SemidenseKeyframe {
         };
         let kf_image = &self.image;
         let cfg = &self.cfg;
+        let f_px = 0.5 * (self.camera.fx + self.camera.fy);
+        let std_ratio = cfg.max_view_std_ratio as f64;
+        let min_votes = cfg.min_consistent_views.max(1);
         let one = |c: &Candidate, st: &mut PixelState| -> ObserveStats {
             let mut s = ObserveStats::default();
             if !st.run.lo.is_finite() && st.searches as usize >= cfg.give_up_after_searches {
                 s.given_up = 1;
+                return s;
+            }
+            // Information gain (eq. 27: inverse-variance weights): a view whose best-case σ (|cos|
+            // = 1, pinhole parallax at the run's estimate) is `k` times the fused σ would weigh
+            // at most 1/k² of the run. Only for pixels that already make a point.
+            if std_ratio > 0.0
+                && st.run.lo.is_finite()
+                && st.run.votes as usize >= min_votes
+                && let Some(v) = ctx
+                    .geometry
+                    .line(&c.ray)
+                    .normalised_speed(st.run.rho as f64)
+                && cfg.match_std_px as f64 > std_ratio * st.run.sigma as f64 * f_px * v
+            {
+                s.converged = 1;
                 return s;
             }
             let (mut lo, mut hi) = (g_lo.max(st.run.lo as f64), g_hi.min(st.run.hi as f64));

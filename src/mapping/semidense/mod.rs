@@ -66,7 +66,10 @@
 //! of increasing baseline** (the keyframe's neighbours first, alternating before/after) for the
 //! best speed and accuracy. A pixel searched in `give_up_after_searches` views without ever getting
 //! two agreeing estimates is not searched any more (occluded, repetitive or badly textured: its
-//! full-range searches would otherwise dominate the cost of the wide-baseline views).
+//! full-range searches would otherwise dominate the cost of the wide-baseline views). A pixel that
+//! already makes a point skips a view whose parallax is too small to matter next to its fused
+//! estimate (`max_view_std_ratio`: the view's best-case σ against the run's, by the weights of
+//! eq. 27), typically the first views after a keyframe that was built from wider history views.
 //!
 //! [`SemidenseKeyframe::map`] then keeps a pixel if its run has at least `min_consistent_views`
 //! votes, a relative uncertainty `σ/ρ` of at most `max_rel_inv_depth_std`, and at least
@@ -152,6 +155,13 @@ pub struct SemidenseConfig {
     /// narrowed window yet) is not searched any more: it is ambiguous, occluded or badly textured,
     /// and its full-range searches would dominate the cost of later, wide-baseline views.
     pub give_up_after_searches: usize,
+    /// A pixel that already makes a point (a narrowed run of `min_consistent_views` votes) is not
+    /// searched in a view whose best-case inverse-depth standard deviation (`match_std_px` over the
+    /// view's parallax per unit inverse depth at the run's estimate, pinhole, `|cos|` = 1) exceeds
+    /// this many times the run's fused σ: by the inverse-variance weights of eq. 27 the view could
+    /// carry at most 1/ratio² of the run's weight (ratio 3: σ shrinks by at most 5 %). Saves the
+    /// short-baseline views after a keyframe. Dimensionless; 0 searches every view.
+    pub max_view_std_ratio: f32,
     /// Votes needed in the consistent run for a point to be output (a propagated prior is one
     /// vote; DPPTAM needs a run of 4).
     pub min_consistent_views: usize,
@@ -190,6 +200,7 @@ impl Default for SemidenseConfig {
             consistency_sigmas: 2.0,
             search_sigmas: 3.0,
             give_up_after_searches: 6,
+            max_view_std_ratio: 3.0,
             min_consistent_views: 3,
             max_rel_inv_depth_std: 0.05,
             neighbour_radius_px: 2,
@@ -265,6 +276,9 @@ pub struct ObserveStats {
     pub out_of_range: usize,
     /// Not searched any more (`give_up_after_searches`).
     pub given_up: usize,
+    /// Not searched in this view: too little parallax to improve the pixel's fused estimate
+    /// (`max_view_std_ratio`).
+    pub converged: usize,
 }
 
 impl ObserveStats {
@@ -279,6 +293,7 @@ impl ObserveStats {
         self.ambiguous += o.ambiguous;
         self.out_of_range += o.out_of_range;
         self.given_up += o.given_up;
+        self.converged += o.converged;
         self
     }
 }
