@@ -401,6 +401,7 @@ impl SemidenseKeyframe {
         let f_px = 0.5 * (self.camera.fx + self.camera.fy);
         let std_ratio = cfg.max_view_std_ratio as f64;
         let min_votes = cfg.min_consistent_views.max(1);
+        let first_kappa = cfg.first_estimate_search_sigmas as f64;
         let one = |c: &Candidate, st: &mut PixelState| -> ObserveStats {
             let mut s = ObserveStats::default();
             if !st.run.lo.is_finite() && st.searches as usize >= cfg.give_up_after_searches {
@@ -425,6 +426,19 @@ impl SemidenseKeyframe {
             let (mut lo, mut hi) = (g_lo.max(st.run.lo as f64), g_hi.min(st.run.hi as f64));
             if !(lo < hi) {
                 (lo, hi) = (g_lo, g_hi);
+            }
+            // A pixel with one view estimate and nothing else searches around it (LSD-SLAM's
+            // narrowing; DPPTAM waits for two): a wrong first estimate is released by a
+            // disagreeing second one, or given up after failed searches like an unmatched pixel.
+            if first_kappa > 0.0 && !st.run.lo.is_finite() && st.count == 1 && st.prior.is_none() {
+                let (r, sg) = (st.run.rho as f64, st.run.sigma as f64);
+                let (l1, h1) = (
+                    g_lo.max(r - first_kappa * sg),
+                    g_hi.min(r + first_kappa * sg),
+                );
+                if l1 < h1 {
+                    (lo, hi) = (l1, h1);
+                }
             }
             let kp = KeyframePixel {
                 image: kf_image,

@@ -62,9 +62,10 @@
 //! inverse depth contained in most `ρ_o ± τ σ_o` intervals; DPPTAM 1(a) uses the spread of a
 //! sorted run over its mean uncertainty) and fuses only its members. Once a run of two exists, the
 //! next views search only the intersection of the members' `ρ ± κ σ` intervals (DPPTAM's range
-//! narrowing), which makes later, wide-baseline views cheap and unambiguous: **feed views in order
-//! of increasing baseline** (the keyframe's neighbours first, alternating before/after) for the
-//! best speed and accuracy. A pixel searched in `give_up_after_searches` views without ever getting
+//! narrowing; before that, a pixel with a single estimate searches `± first_estimate_search_sigmas`
+//! of it, as LSD-SLAM does), which makes later, wide-baseline views cheap and unambiguous: **feed
+//! views in order of increasing baseline** (the keyframe's neighbours first, alternating
+//! before/after) for the best speed and accuracy. A pixel searched in `give_up_after_searches` views without ever getting
 //! two agreeing estimates is not searched any more (occluded, repetitive or badly textured: its
 //! full-range searches would otherwise dominate the cost of the wide-baseline views). A pixel that
 //! already makes a point skips a view whose parallax is too small to matter next to its fused
@@ -151,6 +152,11 @@ pub struct SemidenseConfig {
     /// Once two estimates agree, later searches cover only `± search_sigmas` standard deviations
     /// around them (κ; DPPTAM: ±3σ around [min, max]).
     pub search_sigmas: f32,
+    /// While a pixel has a single view estimate (and no prior), later searches cover only `±` this
+    /// many of its standard deviations around it (LSD-SLAM narrows after one observation, DPPTAM
+    /// after two). Shorter scans and fewer ambiguous matches; a disagreeing second estimate brings
+    /// back the full range. Dimensionless; 0 searches the full range until two estimates agree.
+    pub first_estimate_search_sigmas: f32,
     /// A pixel that has been searched in this many views without two estimates agreeing (no
     /// narrowed window yet) is not searched any more: it is ambiguous, occluded or badly textured,
     /// and its full-range searches would dominate the cost of later, wide-baseline views.
@@ -199,6 +205,7 @@ impl Default for SemidenseConfig {
             match_std_px: 0.5,
             consistency_sigmas: 2.0,
             search_sigmas: 3.0,
+            first_estimate_search_sigmas: 6.0,
             give_up_after_searches: 6,
             max_view_std_ratio: 3.0,
             min_consistent_views: 3,
