@@ -4,7 +4,7 @@ use super::epipolar::{ViewGeometry, normalised_footprint, to_pixel};
 use super::fusion::{
     Cover, CoversMut, Estimate, Run, append_cover, covers_from_scratch, run_from_covers,
 };
-use super::search::{KeyframePixel, Outcome, ViewContext, search_pixel};
+use super::search::{KeyframePixel, Outcome, PATCH, ViewContext, search_pixel, template};
 use super::{MapPoint, ObserveStats, SemidenseConfig, SemidenseMap, ViewSkip};
 use crate::camera::CameraModel;
 use crate::image::Image;
@@ -133,6 +133,8 @@ pub struct SemidenseKeyframe {
     image: Image<f32>,
     footprint: [f64; 4],
     candidates: Vec<Candidate>,
+    /// Zero-mean 7x7 template of each candidate.
+    templates: Vec<[f32; PATCH]>,
     states: Vec<PixelState>,
     /// Candidate index of every pixel (row-major), or `NO_CANDIDATE`.
     index: Vec<u32>,
@@ -177,6 +179,7 @@ impl SemidenseKeyframe {
             },
             footprint: footprint.unwrap_or([0.0; 4]),
             candidates: Vec::new(),
+            templates: Vec::new(),
             states: Vec::new(),
             index: Vec::new(),
             range_m_inv: (0.0, 1.0),
@@ -251,6 +254,11 @@ impl SemidenseKeyframe {
                 });
             }
         }
+        self.templates = self
+            .candidates
+            .iter()
+            .map(|c| template(&self.image, c.x as usize, c.y as usize))
+            .collect();
         self.states = vec![PixelState::EMPTY; self.candidates.len()];
     }
 
@@ -402,7 +410,7 @@ impl SemidenseKeyframe {
         let std_ratio = cfg.max_view_std_ratio as f64;
         let min_votes = cfg.min_consistent_views.max(1);
         let first_kappa = cfg.first_estimate_search_sigmas as f64;
-        let one = |c: &Candidate, st: &mut PixelState| -> ObserveStats {
+        let one = |(c, t7): (&Candidate, &[f32; PATCH]), st: &mut PixelState| -> ObserveStats {
             let mut s = ObserveStats::default();
             if !st.run.lo.is_finite() && st.searches as usize >= cfg.give_up_after_searches {
                 s.given_up = 1;
@@ -447,6 +455,7 @@ impl SemidenseKeyframe {
                 ray: c.ray,
                 jinv: c.jinv,
                 grad_dir: c.grad_dir,
+                template: t7,
             };
             match search_pixel(&ctx, &kp, lo, hi) {
                 Outcome::Matched(e) => {
@@ -468,12 +477,14 @@ impl SemidenseKeyframe {
         let counts = if cfg.parallel {
             self.candidates
                 .par_iter()
+                .zip(self.templates.par_iter())
                 .zip(self.states.par_iter_mut())
                 .fold(ObserveStats::default, |acc, (c, st)| acc.add(&one(c, st)))
                 .reduce(ObserveStats::default, |a, b| a.add(&b))
         } else {
             self.candidates
                 .iter()
+                .zip(self.templates.iter())
                 .zip(self.states.iter_mut())
                 .fold(ObserveStats::default(), |acc, (c, st)| acc.add(&one(c, st)))
         };

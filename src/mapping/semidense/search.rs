@@ -9,7 +9,7 @@ use nalgebra::{Matrix2, Vector2};
 
 /// Template half-size: 7x7 (eq. 28).
 const HALF: i32 = 3;
-const PATCH: usize = 49;
+pub(crate) const PATCH: usize = 49;
 /// The distorted epipolar curve is evaluated exactly every this many pixels, straight between.
 const KNOT_PX: f64 = 16.0;
 /// Longest walk, px (longer than any image diagonal the mapper is meant for).
@@ -66,6 +66,26 @@ pub(crate) struct KeyframePixel<'a> {
     pub jinv: Matrix2<f64>,
     /// Unit image gradient.
     pub grad_dir: [f32; 2],
+    /// The zero-mean 7x7 template around the pixel (see [`template`]).
+    pub template: &'a [f32; PATCH],
+}
+
+/// The zero-mean 7x7 template of eq. 28 around pixel `(x, y)` of `image` (row-major; the pixel
+/// must be at least 3 px inside the image). The same for every view, so computed once.
+pub(crate) fn template(image: &Image<f32>, x: usize, y: usize) -> [f32; PATCH] {
+    let (d, s) = (image.data(), image.stride());
+    let mut t7 = [0.0f32; PATCH];
+    let mut k = 0;
+    for dy in -HALF..=HALF {
+        let row = ((y as i32 + dy) as usize) * s;
+        for dx in -HALF..=HALF {
+            t7[k] = d[row + (x as i32 + dx) as usize];
+            k += 1;
+        }
+    }
+    let m7 = t7.iter().sum::<f32>() / PATCH as f32;
+    t7.iter_mut().for_each(|t| *t -= m7);
+    t7
 }
 
 /// Bilinear sample with the 2x2 cell known to be inside.
@@ -254,7 +274,8 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         a[(1, 1)] as f32,
     ];
 
-    // Templates: 5 samples along the keyframe's epipolar direction, and the 7x7 square; zero-mean.
+    // Templates: 5 samples along the keyframe's epipolar direction (and the 7x7 square, given);
+    // zero-mean.
     let (kd, ks) = (kp.image.data(), kp.image.stride());
     let (x, y) = (kp.x as f32, kp.y as f32);
     let (dkx, dky) = (dk.x as f32, dk.y as f32);
@@ -270,17 +291,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     let m5 = t5.iter().sum::<f32>() / 5.0;
     t5.iter_mut().for_each(|t| *t -= m5);
     let st5: f32 = t5.iter().map(|t| t * t).sum();
-    let mut t7 = [0.0f32; PATCH];
-    let mut k = 0;
-    for dy in -HALF..=HALF {
-        let row = ((kp.y as i32 + dy) as usize) * ks;
-        for dx in -HALF..=HALF {
-            t7[k] = kd[row + (kp.x as i32 + dx) as usize];
-            k += 1;
-        }
-    }
-    let m7 = t7.iter().sum::<f32>() / PATCH as f32;
-    t7.iter_mut().for_each(|t| *t -= m7);
+    let t7 = kp.template;
 
     // Epipolar scan: 1-px steps along the curve, exact at knots, 5-sample zero-mean SSD.
     let (vd, vs) = (ctx.image.data(), ctx.image.stride());
@@ -376,7 +387,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             ctx.image,
             [u.x as f32, u.y as f32],
             &af,
-            &t7,
+            t7,
             [ut.x as f32, ut.y as f32],
         )
         .map(|(c, g, h)| (c, g, h, ut.norm()))
@@ -385,7 +396,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     let check_second = c2_scan <= SECOND_SCAN_RATIO * minima.0[0].0.max(SCAN_NOISE_FLOOR);
     let first = gn_at(s1);
     let second = if check_second {
-        patch_cost(ctx.image, pix(s2), &af, &t7)
+        patch_cost(ctx.image, pix(s2), &af, t7)
     } else {
         None
     };
