@@ -94,26 +94,11 @@ fn sample(d: &[f32], stride: usize, x: f32, y: f32) -> f32 {
     let (x0, y0) = (x as usize, y as usize);
     let (fx, fy) = (x - x0 as f32, y - y0 as f32);
     let i = y0 * stride + x0;
-    let (a, b, c, e) = (d[i], d[i + 1], d[i + stride], d[i + stride + 1]);
+    let cell = &d[i..i + stride + 2]; // one bounds check for the four corners
+    let (a, b, c, e) = (cell[0], cell[1], cell[stride], cell[stride + 1]);
     let top = a + fx * (b - a);
     let bot = c + fx * (e - c);
     top + fy * (bot - top)
-}
-
-/// Bilinear sample and gradient with the 2x2 cell known to be inside.
-#[inline(always)]
-fn sample_grad(d: &[f32], stride: usize, x: f32, y: f32) -> (f32, f32, f32) {
-    let (x0, y0) = (x as usize, y as usize);
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let i = y0 * stride + x0;
-    let (a, b, c, e) = (d[i], d[i + 1], d[i + stride], d[i + stride + 1]);
-    let top = a + fx * (b - a);
-    let bot = c + fx * (e - c);
-    (
-        top + fy * (bot - top),
-        (b - a) + fy * ((e - c) - (b - a)),
-        bot - top,
-    )
 }
 
 #[inline(always)]
@@ -170,22 +155,49 @@ fn patch_cost_gn(
         return None;
     }
     let (d, s) = (img.data(), img.stride());
-    let (mut sv, mut sd2, mut sdj, mut sj, mut sjj) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
-    let mut k = 0;
-    for dy in -HALF..=HALF {
+    // Lane-wise sums over the 7 columns (an 8th, zero lane pads the row for SIMD): the corners of
+    // each sample's bilinear cell are gathered first, then interpolated and summed lane by lane.
+    const L: usize = 8;
+    let (mut sv, mut sd2, mut sdj, mut sj, mut sjj) = (
+        [0.0f32; L],
+        [0.0f32; L],
+        [0.0f32; L],
+        [0.0f32; L],
+        [0.0f32; L],
+    );
+    for (row, dy) in (-HALF..=HALF).enumerate() {
         let (bx, by) = (u[0] + a[1] * dy as f32, u[1] + a[3] * dy as f32);
-        for dx in -HALF..=HALF {
-            let (v, gx, gy) = sample_grad(d, s, bx + a[0] * dx as f32, by + a[2] * dx as f32);
-            let r = v - t[k];
+        let (mut ca, mut cb, mut cc, mut ce) = ([0.0f32; L], [0.0f32; L], [0.0f32; L], [0.0f32; L]);
+        let (mut fx, mut fy, mut tt) = ([0.0f32; L], [0.0f32; L], [0.0f32; L]);
+        for k in 0..7 {
+            let dx = k as f32 - HALF as f32;
+            let (x, y) = (bx + a[0] * dx, by + a[2] * dx);
+            let (x0, y0) = (x as usize, y as usize);
+            fx[k] = x - x0 as f32;
+            fy[k] = y - y0 as f32;
+            let i = y0 * s + x0;
+            let cell = &d[i..i + s + 2]; // one bounds check for the four corners
+            (ca[k], cb[k], cc[k], ce[k]) = (cell[0], cell[1], cell[s], cell[s + 1]);
+            tt[k] = t[row * 7 + k];
+        }
+        for k in 0..L {
+            let (a_, b_, c_, e_) = (ca[k], cb[k], cc[k], ce[k]);
+            let top = a_ + fx[k] * (b_ - a_);
+            let bot = c_ + fx[k] * (e_ - c_);
+            let v = top + fy[k] * (bot - top);
+            let gx = (b_ - a_) + fy[k] * ((e_ - c_) - (b_ - a_));
+            let gy = bot - top;
+            let r = v - tt[k];
             let j = gx * ut[0] + gy * ut[1];
-            sv += v;
-            sd2 += r * r;
-            sdj += r * j;
-            sj += j;
-            sjj += j * j;
-            k += 1;
+            sv[k] += v;
+            sd2[k] += r * r;
+            sdj[k] += r * j;
+            sj[k] += j;
+            sjj[k] += j * j;
         }
     }
+    let sum = |x: [f32; L]| ((x[0] + x[4]) + (x[1] + x[5])) + ((x[2] + x[6]) + (x[3] + x[7]));
+    let (sv, sd2, sdj, sj, sjj) = (sum(sv), sum(sd2), sum(sdj), sum(sj), sum(sjj));
     let n = PATCH as f32;
     // residuals r − mean(r) and Jacobians j − mean(j) (the patch mean moves with the patch)
     Some((sd2 - sv * sv / n, sdj - sv / n * sj, sjj - sj * sj / n))
@@ -203,6 +215,107 @@ impl Minima {
         } else if c < self.0[1].0 {
             self.0[1] = (c, s);
         }
+    }
+}
+
+/// Samples buffered by the scan before they are scored: a chunk plus the 4 previous samples that
+/// the first windows of the chunk still span.
+const SCAN_BUF: usize = 64;
+
+/// The epipolar scan's 5-sample zero-mean SSD and its two best interior minima. Samples are
+/// buffered and scored a chunk at a time: the window costs of a chunk are independent of each
+/// other (a loop the compiler vectorises); only the minima search runs sample by sample.
+struct Scan {
+    t5: [f32; 5],
+    st5: f32,
+    /// Samples (NaN outside the image) and their curve parameters; `n` are filled.
+    w: [f32; SCAN_BUF],
+    s: [f64; SCAN_BUF],
+    n: usize,
+    /// Costs of the two windows before the next one (∞ after a gap or at the start).
+    c_prev2: f32,
+    c_prev: f32,
+    minima: Minima,
+}
+
+impl Scan {
+    fn new(t5: [f32; 5], st5: f32) -> Self {
+        Scan {
+            t5,
+            st5,
+            w: [0.0; SCAN_BUF],
+            s: [0.0; SCAN_BUF],
+            n: 0,
+            c_prev2: f32::INFINITY,
+            c_prev: f32::INFINITY,
+            minima: Minima([(f32::INFINITY, f64::NAN); 2]),
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, v: f32, s: f64) {
+        self.w[self.n] = v;
+        self.s[self.n] = s;
+        self.n += 1;
+        if self.n == SCAN_BUF {
+            self.flush();
+            // keep the last 4 samples: the next windows still span them
+            self.w.copy_within(SCAN_BUF - 4.., 0);
+            self.s.copy_within(SCAN_BUF - 4.., 0);
+            self.n = 4;
+        }
+    }
+
+    /// Scores the windows ending at samples `4..n` (those before were scored by the previous
+    /// chunk) and updates the minima.
+    fn flush(&mut self) {
+        let n = self.n;
+        if n < 5 {
+            return;
+        }
+        let m = n - 4;
+        let t = self.t5;
+        let st5 = self.st5;
+        let w = &self.w;
+        let (w0, w1, w2, w3, w4) = (&w[..m], &w[1..m + 1], &w[2..m + 2], &w[3..m + 3], &w[4..n]);
+        let mut c = [0.0f32; SCAN_BUF];
+        for (k, ck) in c[..m].iter_mut().enumerate() {
+            let (a, b, d, e, f) = (w0[k], w1[k], w2[k], w3[k], w4[k]);
+            let sv = a + b + d + e + f;
+            let svv = a * a + b * b + d * d + e * e + f * f;
+            let svt = a * t[0] + b * t[1] + d * t[2] + e * t[3] + f * t[4];
+            *ck = svv - sv * sv * 0.2 - 2.0 * svt + st5;
+        }
+        let (mut c_prev2, mut c_prev) = (self.c_prev2, self.c_prev);
+        for (k, &ck) in c[..m].iter().enumerate() {
+            if ck.is_nan() {
+                // a window over a gap: the scan restarts after it
+                (c_prev2, c_prev) = (f32::INFINITY, f32::INFINITY);
+                continue;
+            }
+            // Only interior minima: one at the end of the scan (or of a gap) may continue outside
+            // the range, and then the match is elsewhere. (Tested first: beating the second best,
+            // rarely true once the scan is under way, so the branch predicts well.)
+            if c_prev < self.minima.0[1].0
+                && c_prev <= c_prev2
+                && c_prev < ck
+                && c_prev2 < f32::INFINITY
+            {
+                // sub-sample position from the parabola through the three costs; the window
+                // ending at sample k + 4 is centred on sample k + 2
+                let den = c_prev2 - 2.0 * c_prev + ck;
+                let d = if den > 0.0 {
+                    (0.5 * (c_prev2 - ck) / den).clamp(-0.5, 0.5)
+                } else {
+                    0.0
+                };
+                let s = &self.s;
+                self.minima
+                    .push(c_prev, s[k + 1] + d as f64 * 0.5 * (s[k + 2] - s[k]));
+            }
+            (c_prev2, c_prev) = (c_prev, ck);
+        }
+        (self.c_prev2, self.c_prev) = (c_prev2, c_prev);
     }
 }
 
@@ -307,12 +420,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         .ceil()
         .max(1.0) as usize;
     let ds_seg = (s_b - s_a) / n_seg as f64;
-    let mut w = [0.0f32; 5];
-    let mut ws = [0.0f64; 3];
-    let mut filled = 0usize; // consecutive valid samples
-    let (mut c_prev2, mut c_prev) = (f32::INFINITY, f32::INFINITY);
-    let (mut s_prev2, mut s_prev) = (0.0f64, 0.0f64);
-    let mut minima = Minima([(f32::INFINITY, f64::NAN); 2]);
+    let mut scan = Scan::new(t5, st5);
     let mut s_k = s_a;
     let mut u_k = pix(s_k);
     let mut off = 0.0f32;
@@ -336,44 +444,19 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             let (ux, uy) = (u_k[0] + off * stx, u_k[1] + off * sty);
             let s = s_k + off as f64 * sts;
             off += 1.0;
-            if !(ux >= 0.0 && uy >= 0.0 && ux < x_lim && uy < y_lim) {
-                filled = 0;
-                (c_prev2, c_prev) = (f32::INFINITY, f32::INFINITY);
-                continue;
-            }
-            // the window (last 5 samples, oldest first) is shifted in registers
-            w = [w[1], w[2], w[3], w[4], sample(vd, vs, ux, uy)];
-            ws = [ws[1], ws[2], s];
-            filled += 1;
-            if filled < 5 {
-                continue;
-            }
-            let sv = w[0] + w[1] + w[2] + w[3] + w[4];
-            let svv = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + w[3] * w[3] + w[4] * w[4];
-            let svt = w[0] * t5[0] + w[1] * t5[1] + w[2] * t5[2] + w[3] * t5[3] + w[4] * t5[4];
-            let c = svv - sv * sv * 0.2 - 2.0 * svt + st5;
-            // Only interior minima: one at the end of the scan (or of a gap) may continue outside
-            // the range, and then the match is elsewhere. (Tested first: beating the second best,
-            // rarely true once the scan is under way, so the branch predicts well.)
-            if c_prev < minima.0[1].0 && c_prev <= c_prev2 && c_prev < c && c_prev2 < f32::INFINITY
-            {
-                // sub-sample position from the parabola through the three costs
-                let den = c_prev2 - 2.0 * c_prev + c;
-                let d = if den > 0.0 {
-                    (0.5 * (c_prev2 - c) / den).clamp(-0.5, 0.5)
-                } else {
-                    0.0
-                };
-                minima.push(c_prev, s_prev + d as f64 * 0.5 * (ws[0] - s_prev2));
-            }
-            // the window's centre sample was taken 2 steps ago
-            (c_prev2, c_prev) = (c_prev, c);
-            (s_prev2, s_prev) = (s_prev, ws[0]);
+            let v = if ux >= 0.0 && uy >= 0.0 && ux < x_lim && uy < y_lim {
+                sample(vd, vs, ux, uy)
+            } else {
+                f32::NAN // a gap: no window containing it is scored
+            };
+            scan.push(v, s);
         }
         off -= len;
         s_k = s_k1;
         u_k = u_k1;
     }
+    scan.flush();
+    let minima = scan.minima;
     if !minima.0[0].0.is_finite() {
         return Outcome::OutOfRange;
     }
