@@ -165,7 +165,7 @@ pub struct SemidenseConfig {
     /// searched in a view whose best-case inverse-depth standard deviation (`match_std_px` over the
     /// view's parallax per unit inverse depth at the run's estimate, pinhole, `|cos|` = 1) exceeds
     /// this many times the run's fused σ: by the inverse-variance weights of eq. 27 the view could
-    /// carry at most 1/ratio² of the run's weight (ratio 3: σ shrinks by at most 5 %). Saves the
+    /// carry at most 1/ratio² of the run's weight (ratio 2.5: σ shrinks by at most 7 %). Saves the
     /// short-baseline views after a keyframe. Dimensionless; 0 searches every view.
     pub max_view_std_ratio: f32,
     /// Votes needed in the consistent run for a point to be output (a propagated prior is one
@@ -207,7 +207,7 @@ impl Default for SemidenseConfig {
             search_sigmas: 3.0,
             first_estimate_search_sigmas: 6.0,
             give_up_after_searches: 6,
-            max_view_std_ratio: 3.0,
+            max_view_std_ratio: 2.5,
             min_consistent_views: 3,
             max_rel_inv_depth_std: 0.05,
             neighbour_radius_px: 2,
