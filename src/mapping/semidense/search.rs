@@ -126,20 +126,91 @@ fn patch_cost(img: &Image<f32>, u: [f32; 2], a: &[f32; 4], t: &[f32; PATCH]) -> 
     if !patch_inside(img, u, a) {
         return None;
     }
-    let (d, s) = (img.data(), img.stride());
-    let (mut sv, mut sd2) = (0.0f32, 0.0f32);
-    let mut k = 0;
-    for dy in -HALF..=HALF {
-        let (bx, by) = (u[0] + a[1] * dy as f32, u[1] + a[3] * dy as f32);
-        for dx in -HALF..=HALF {
-            let v = sample(d, s, bx + a[0] * dx as f32, by + a[2] * dx as f32);
-            let r = v - t[k];
-            sv += v;
-            sd2 += r * r;
-            k += 1;
+    // Lane-wise sums as in `patch_cost_gn` (the same order, so the two costs compare exactly).
+    let (mut sv, mut sd2) = ([0.0f32; LANES], [0.0f32; LANES]);
+    for (row, dy) in (-HALF..=HALF).enumerate() {
+        let c = Cells::gather(img, u, a, dy, t, row);
+        for k in 0..LANES {
+            let (v, _, _) = c.interpolate(k);
+            let r = v - c.t[k];
+            sv[k] += v;
+            sd2[k] += r * r;
         }
     }
+    let (sv, sd2) = (lane_sum(sv), lane_sum(sd2));
     Some(sd2 - sv * sv / PATCH as f32)
+}
+
+/// Lanes of the row-wise patch sums: the 7 columns and a zero pad (for SIMD).
+const LANES: usize = 8;
+
+#[inline(always)]
+fn lane_sum(x: [f32; LANES]) -> f32 {
+    ((x[0] + x[4]) + (x[1] + x[5])) + ((x[2] + x[6]) + (x[3] + x[7]))
+}
+
+/// One row of the warped 7x7 patch: the corners of each sample's bilinear cell, its weights and
+/// the template values (the pad lane is all zero: it adds nothing to any sum). Gathered first, so
+/// that the interpolation and the sums run lane by lane.
+struct Cells {
+    a: [f32; LANES],
+    b: [f32; LANES],
+    c: [f32; LANES],
+    e: [f32; LANES],
+    fx: [f32; LANES],
+    fy: [f32; LANES],
+    t: [f32; LANES],
+}
+
+impl Cells {
+    /// Row `dy` of the patch `u + A δ` (known to be inside), with template row `row`.
+    #[inline(always)]
+    fn gather(
+        img: &Image<f32>,
+        u: [f32; 2],
+        a: &[f32; 4],
+        dy: i32,
+        t: &[f32; PATCH],
+        row: usize,
+    ) -> Self {
+        let (d, s) = (img.data(), img.stride());
+        let (bx, by) = (u[0] + a[1] * dy as f32, u[1] + a[3] * dy as f32);
+        let mut c = Cells {
+            a: [0.0; LANES],
+            b: [0.0; LANES],
+            c: [0.0; LANES],
+            e: [0.0; LANES],
+            fx: [0.0; LANES],
+            fy: [0.0; LANES],
+            t: [0.0; LANES],
+        };
+        for k in 0..7 {
+            let dx = k as f32 - HALF as f32;
+            let (x, y) = (bx + a[0] * dx, by + a[2] * dx);
+            let (x0, y0) = (x as usize, y as usize);
+            c.fx[k] = x - x0 as f32;
+            c.fy[k] = y - y0 as f32;
+            let i = y0 * s + x0;
+            let cell = &d[i..i + s + 2]; // one bounds check for the four corners
+            (c.a[k], c.b[k], c.c[k], c.e[k]) = (cell[0], cell[1], cell[s], cell[s + 1]);
+            c.t[k] = t[row * 7 + k];
+        }
+        c
+    }
+
+    /// Bilinear value and gradient of lane `k` (as [`sample`]).
+    #[inline(always)]
+    fn interpolate(&self, k: usize) -> (f32, f32, f32) {
+        let (a, b, c, e) = (self.a[k], self.b[k], self.c[k], self.e[k]);
+        let (fx, fy) = (self.fx[k], self.fy[k]);
+        let top = a + fx * (b - a);
+        let bot = c + fx * (e - c);
+        (
+            top + fy * (bot - top),
+            (b - a) + fy * ((e - c) - (b - a)),
+            bot - top,
+        )
+    }
 }
 
 /// Zero-mean SSD as [`patch_cost`] plus the Gauss–Newton terms `(Σ r J, Σ J²)` for a shift of the
@@ -154,40 +225,13 @@ fn patch_cost_gn(
     if !patch_inside(img, u, a) {
         return None;
     }
-    let (d, s) = (img.data(), img.stride());
-    // Lane-wise sums over the 7 columns (an 8th, zero lane pads the row for SIMD): the corners of
-    // each sample's bilinear cell are gathered first, then interpolated and summed lane by lane.
-    const L: usize = 8;
-    let (mut sv, mut sd2, mut sdj, mut sj, mut sjj) = (
-        [0.0f32; L],
-        [0.0f32; L],
-        [0.0f32; L],
-        [0.0f32; L],
-        [0.0f32; L],
-    );
+    let z = [0.0f32; LANES];
+    let (mut sv, mut sd2, mut sdj, mut sj, mut sjj) = (z, z, z, z, z);
     for (row, dy) in (-HALF..=HALF).enumerate() {
-        let (bx, by) = (u[0] + a[1] * dy as f32, u[1] + a[3] * dy as f32);
-        let (mut ca, mut cb, mut cc, mut ce) = ([0.0f32; L], [0.0f32; L], [0.0f32; L], [0.0f32; L]);
-        let (mut fx, mut fy, mut tt) = ([0.0f32; L], [0.0f32; L], [0.0f32; L]);
-        for k in 0..7 {
-            let dx = k as f32 - HALF as f32;
-            let (x, y) = (bx + a[0] * dx, by + a[2] * dx);
-            let (x0, y0) = (x as usize, y as usize);
-            fx[k] = x - x0 as f32;
-            fy[k] = y - y0 as f32;
-            let i = y0 * s + x0;
-            let cell = &d[i..i + s + 2]; // one bounds check for the four corners
-            (ca[k], cb[k], cc[k], ce[k]) = (cell[0], cell[1], cell[s], cell[s + 1]);
-            tt[k] = t[row * 7 + k];
-        }
-        for k in 0..L {
-            let (a_, b_, c_, e_) = (ca[k], cb[k], cc[k], ce[k]);
-            let top = a_ + fx[k] * (b_ - a_);
-            let bot = c_ + fx[k] * (e_ - c_);
-            let v = top + fy[k] * (bot - top);
-            let gx = (b_ - a_) + fy[k] * ((e_ - c_) - (b_ - a_));
-            let gy = bot - top;
-            let r = v - tt[k];
+        let c = Cells::gather(img, u, a, dy, t, row);
+        for k in 0..LANES {
+            let (v, gx, gy) = c.interpolate(k);
+            let r = v - c.t[k];
             let j = gx * ut[0] + gy * ut[1];
             sv[k] += v;
             sd2[k] += r * r;
@@ -196,8 +240,13 @@ fn patch_cost_gn(
             sjj[k] += j * j;
         }
     }
-    let sum = |x: [f32; L]| ((x[0] + x[4]) + (x[1] + x[5])) + ((x[2] + x[6]) + (x[3] + x[7]));
-    let (sv, sd2, sdj, sj, sjj) = (sum(sv), sum(sd2), sum(sdj), sum(sj), sum(sjj));
+    let (sv, sd2, sdj, sj, sjj) = (
+        lane_sum(sv),
+        lane_sum(sd2),
+        lane_sum(sdj),
+        lane_sum(sj),
+        lane_sum(sjj),
+    );
     let n = PATCH as f32;
     // residuals r − mean(r) and Jacobians j − mean(j) (the patch mean moves with the patch)
     Some((sd2 - sv * sv / n, sdj - sv / n * sj, sjj - sj * sj / n))
