@@ -92,7 +92,7 @@
 //!
 //! `observe` allocates nothing and is single-threaded unless `parallel` is set (then the
 //! candidates are shared out on the rayon pool; the result is identical). On the simulator test
-//! (752x480 EuRoC camera, ~20k candidates, `tests/semidense_depth.rs`) it takes ~10–35 ms of one
+//! (752x480 EuRoC camera, ~20k candidates, `tests/semidense_depth.rs`) it takes ~5–25 ms of one
 //! core (the first, full-range views are the dearest), `map` ~1 ms, `new` ~5–10 ms.
 //!
 //! Nothing assumes a scale: inverse depths are in 1/m given poses in metres.
