@@ -85,6 +85,20 @@ impl EpipolarLine {
             .filter(|r| r.is_finite())
     }
 
+    /// `|d n / d ρ|` at inverse depth `rho`: how fast the projection moves along the line,
+    /// normalised units per 1/m (pinhole; `None` behind the view). From `n = (a_xy + ρ b_xy) /
+    /// (a_z + ρ b_z)`: `d n / d ρ = (b_xy a_z − a_xy b_z) / (a_z + ρ b_z)²`.
+    #[inline]
+    pub fn normalised_speed(&self, rho: f64) -> Option<f64> {
+        let z = self.a.z + self.b.z * rho;
+        if !(z > MIN_HOMOGENEOUS_Z) {
+            return None;
+        }
+        let dx = self.b.x * self.a.z - self.a.x * self.b.z;
+        let dy = self.b.y * self.a.z - self.a.y * self.b.z;
+        Some((dx * dx + dy * dy).sqrt() / (z * z))
+    }
+
     /// `[lo, hi]` shrunk to the inverse depths in front of the view; `None` if none is.
     pub fn front_range(&self, lo: f64, hi: f64) -> Option<(f64, f64)> {
         let (az, bz) = (self.a.z, self.b.z);

@@ -1,8 +1,10 @@
 //! [`SemidenseKeyframe`]: candidates, per-pixel estimates, observe / propagate / map.
 
 use super::epipolar::{ViewGeometry, normalised_footprint, to_pixel};
-use super::fusion::{Estimate, Run, consistent_run};
-use super::search::{KeyframePixel, Outcome, ViewContext, search_pixel};
+use super::fusion::{
+    Cover, CoversMut, Estimate, Run, append_cover, covers_from_scratch, run_from_covers,
+};
+use super::search::{KeyframePixel, Outcome, PATCH, ViewContext, search_pixel, template};
 use super::{MapPoint, ObserveStats, SemidenseConfig, SemidenseMap, ViewSkip};
 use crate::camera::CameraModel;
 use crate::image::Image;
@@ -34,7 +36,12 @@ struct PixelState {
     /// Views in which the epipolar curve was scanned.
     searches: u8,
     estimates: [Estimate; MAX_ESTIMATES],
+    /// How many estimates (and their total weight) cover the left end of `estimates[i]`'s
+    /// interval (fusion module's `Cover`, kept apart to keep the state small).
+    cover_votes: [u8; MAX_ESTIMATES],
+    cover_weight: [f32; MAX_ESTIMATES],
     prior: Option<Estimate>,
+    prior_cover: Cover,
     run: Run,
 }
 
@@ -46,24 +53,61 @@ impl PixelState {
             rho: 0.0,
             sigma: 0.0,
         }; MAX_ESTIMATES],
+        cover_votes: [0; MAX_ESTIMATES],
+        cover_weight: [0.0; MAX_ESTIMATES],
         prior: None,
+        prior_cover: Cover {
+            votes: 0,
+            weight: 0.0,
+        },
         run: Run::EMPTY,
     };
 
-    fn update_run(&mut self, cfg: &SemidenseConfig) {
-        self.run = consistent_run(
-            &self.estimates[..self.count as usize],
+    /// Recomputes the covers (O(n²)) and the run.
+    fn refuse(&mut self, cfg: &SemidenseConfig) {
+        let n = self.count as usize;
+        self.prior_cover = covers_from_scratch(
+            &self.estimates[..n],
             self.prior,
+            cfg.consistency_sigmas,
+            CoversMut {
+                votes: &mut self.cover_votes[..n],
+                weight: &mut self.cover_weight[..n],
+            },
+        );
+        self.update_run(cfg);
+    }
+
+    fn update_run(&mut self, cfg: &SemidenseConfig) {
+        let n = self.count as usize;
+        self.run = run_from_covers(
+            &self.estimates[..n],
+            &self.cover_votes[..n],
+            &self.cover_weight[..n],
+            self.prior,
+            self.prior_cover,
             cfg.consistency_sigmas,
             cfg.search_sigmas,
         );
     }
 
-    fn insert(&mut self, e: Estimate) {
+    /// Adds an estimate and updates the run (eq. 27 over the consistent run).
+    fn insert(&mut self, e: Estimate, cfg: &SemidenseConfig) {
         let n = self.count as usize;
         if n < MAX_ESTIMATES {
             self.estimates[n] = e;
             self.count += 1;
+            append_cover(
+                &self.estimates[..=n],
+                self.prior,
+                cfg.consistency_sigmas,
+                CoversMut {
+                    votes: &mut self.cover_votes[..=n],
+                    weight: &mut self.cover_weight[..=n],
+                },
+                &mut self.prior_cover,
+            );
+            self.update_run(cfg);
         } else if let Some(worst) = self
             .estimates
             .iter_mut()
@@ -71,6 +115,7 @@ impl PixelState {
             .filter(|w| w.sigma > e.sigma)
         {
             *worst = e;
+            self.refuse(cfg);
         }
     }
 }
@@ -88,6 +133,8 @@ pub struct SemidenseKeyframe {
     image: Image<f32>,
     footprint: [f64; 4],
     candidates: Vec<Candidate>,
+    /// Zero-mean 7x7 template of each candidate.
+    templates: Vec<[f32; PATCH]>,
     states: Vec<PixelState>,
     /// Candidate index of every pixel (row-major), or `NO_CANDIDATE`.
     index: Vec<u32>,
@@ -132,6 +179,7 @@ impl SemidenseKeyframe {
             },
             footprint: footprint.unwrap_or([0.0; 4]),
             candidates: Vec::new(),
+            templates: Vec::new(),
             states: Vec::new(),
             index: Vec::new(),
             range_m_inv: (0.0, 1.0),
@@ -206,6 +254,11 @@ impl SemidenseKeyframe {
                 });
             }
         }
+        self.templates = self
+            .candidates
+            .iter()
+            .map(|c| template(&self.image, c.x as usize, c.y as usize))
+            .collect();
         self.states = vec![PixelState::EMPTY; self.candidates.len()];
     }
 
@@ -307,7 +360,7 @@ impl SemidenseKeyframe {
         let mut seeded = 0;
         for (st, d) in self.states.iter_mut().zip(&dist) {
             if d.is_finite() {
-                st.update_run(&self.cfg);
+                st.refuse(&self.cfg);
                 seeded += 1;
             }
         }
@@ -353,15 +406,47 @@ impl SemidenseKeyframe {
         };
         let kf_image = &self.image;
         let cfg = &self.cfg;
-        let one = |c: &Candidate, st: &mut PixelState| -> ObserveStats {
+        let f_px = 0.5 * (self.camera.fx + self.camera.fy);
+        let std_ratio = cfg.max_view_std_ratio as f64;
+        let min_votes = cfg.min_consistent_views.max(1);
+        let first_kappa = cfg.first_estimate_search_sigmas as f64;
+        let one = |(c, t7): (&Candidate, &[f32; PATCH]), st: &mut PixelState| -> ObserveStats {
             let mut s = ObserveStats::default();
             if !st.run.lo.is_finite() && st.searches as usize >= cfg.give_up_after_searches {
                 s.given_up = 1;
                 return s;
             }
+            // Information gain (eq. 27: inverse-variance weights): a view whose best-case σ (|cos|
+            // = 1, pinhole parallax at the run's estimate) is `k` times the fused σ would weigh
+            // at most 1/k² of the run. Only for pixels that already make a point.
+            if std_ratio > 0.0
+                && st.run.lo.is_finite()
+                && st.run.votes as usize >= min_votes
+                && let Some(v) = ctx
+                    .geometry
+                    .line(&c.ray)
+                    .normalised_speed(st.run.rho as f64)
+                && cfg.match_std_px as f64 > std_ratio * st.run.sigma as f64 * f_px * v
+            {
+                s.converged = 1;
+                return s;
+            }
             let (mut lo, mut hi) = (g_lo.max(st.run.lo as f64), g_hi.min(st.run.hi as f64));
             if !(lo < hi) {
                 (lo, hi) = (g_lo, g_hi);
+            }
+            // A pixel with one view estimate and nothing else searches around it (LSD-SLAM's
+            // narrowing; DPPTAM waits for two): a wrong first estimate is released by a
+            // disagreeing second one, or given up after failed searches like an unmatched pixel.
+            if first_kappa > 0.0 && !st.run.lo.is_finite() && st.count == 1 && st.prior.is_none() {
+                let (r, sg) = (st.run.rho as f64, st.run.sigma as f64);
+                let (l1, h1) = (
+                    g_lo.max(r - first_kappa * sg),
+                    g_hi.min(r + first_kappa * sg),
+                );
+                if l1 < h1 {
+                    (lo, hi) = (l1, h1);
+                }
             }
             let kp = KeyframePixel {
                 image: kf_image,
@@ -370,13 +455,13 @@ impl SemidenseKeyframe {
                 ray: c.ray,
                 jinv: c.jinv,
                 grad_dir: c.grad_dir,
+                template: t7,
             };
             match search_pixel(&ctx, &kp, lo, hi) {
                 Outcome::Matched(e) => {
                     s.searched = 1;
                     s.matched = 1;
-                    st.insert(e);
-                    st.update_run(cfg);
+                    st.insert(e, cfg);
                 }
                 Outcome::OutOfView => s.out_of_view = 1,
                 Outcome::LowParallax => s.low_parallax = 1,
@@ -392,12 +477,14 @@ impl SemidenseKeyframe {
         let counts = if cfg.parallel {
             self.candidates
                 .par_iter()
+                .zip(self.templates.par_iter())
                 .zip(self.states.par_iter_mut())
                 .fold(ObserveStats::default, |acc, (c, st)| acc.add(&one(c, st)))
                 .reduce(ObserveStats::default, |a, b| a.add(&b))
         } else {
             self.candidates
                 .iter()
+                .zip(self.templates.iter())
                 .zip(self.states.iter_mut())
                 .fold(ObserveStats::default(), |acc, (c, st)| acc.add(&one(c, st)))
         };

@@ -62,11 +62,15 @@
 //! inverse depth contained in most `ρ_o ± τ σ_o` intervals; DPPTAM 1(a) uses the spread of a
 //! sorted run over its mean uncertainty) and fuses only its members. Once a run of two exists, the
 //! next views search only the intersection of the members' `ρ ± κ σ` intervals (DPPTAM's range
-//! narrowing), which makes later, wide-baseline views cheap and unambiguous: **feed views in order
-//! of increasing baseline** (the keyframe's neighbours first, alternating before/after) for the
-//! best speed and accuracy. A pixel searched in `give_up_after_searches` views without ever getting
+//! narrowing; before that, a pixel with a single estimate searches `± first_estimate_search_sigmas`
+//! of it, as LSD-SLAM does), which makes later, wide-baseline views cheap and unambiguous: **feed
+//! views in order of increasing baseline** (the keyframe's neighbours first, alternating
+//! before/after) for the best speed and accuracy. A pixel searched in `give_up_after_searches` views without ever getting
 //! two agreeing estimates is not searched any more (occluded, repetitive or badly textured: its
-//! full-range searches would otherwise dominate the cost of the wide-baseline views).
+//! full-range searches would otherwise dominate the cost of the wide-baseline views). A pixel that
+//! already makes a point skips a view whose parallax is too small to matter next to its fused
+//! estimate (`max_view_std_ratio`: the view's best-case σ against the run's, by the weights of
+//! eq. 27), typically the first views after a keyframe that was built from wider history views.
 //!
 //! [`SemidenseKeyframe::map`] then keeps a pixel if its run has at least `min_consistent_views`
 //! votes, a relative uncertainty `σ/ρ` of at most `max_rel_inv_depth_std`, and at least
@@ -88,7 +92,7 @@
 //!
 //! `observe` allocates nothing and is single-threaded unless `parallel` is set (then the
 //! candidates are shared out on the rayon pool; the result is identical). On the simulator test
-//! (752x480 EuRoC camera, ~20k candidates, `tests/semidense_depth.rs`) it takes ~10–35 ms of one
+//! (752x480 EuRoC camera, ~20k candidates, `tests/semidense_depth.rs`) it takes ~5–25 ms of one
 //! core (the first, full-range views are the dearest), `map` ~1 ms, `new` ~5–10 ms.
 //!
 //! Nothing assumes a scale: inverse depths are in 1/m given poses in metres.
@@ -148,10 +152,22 @@ pub struct SemidenseConfig {
     /// Once two estimates agree, later searches cover only `± search_sigmas` standard deviations
     /// around them (κ; DPPTAM: ±3σ around [min, max]).
     pub search_sigmas: f32,
+    /// While a pixel has a single view estimate (and no prior), later searches cover only `±` this
+    /// many of its standard deviations around it (LSD-SLAM narrows after one observation, DPPTAM
+    /// after two). Shorter scans and fewer ambiguous matches; a disagreeing second estimate brings
+    /// back the full range. Dimensionless; 0 searches the full range until two estimates agree.
+    pub first_estimate_search_sigmas: f32,
     /// A pixel that has been searched in this many views without two estimates agreeing (no
     /// narrowed window yet) is not searched any more: it is ambiguous, occluded or badly textured,
     /// and its full-range searches would dominate the cost of later, wide-baseline views.
     pub give_up_after_searches: usize,
+    /// A pixel that already makes a point (a narrowed run of `min_consistent_views` votes) is not
+    /// searched in a view whose best-case inverse-depth standard deviation (`match_std_px` over the
+    /// view's parallax per unit inverse depth at the run's estimate, pinhole, `|cos|` = 1) exceeds
+    /// this many times the run's fused σ: by the inverse-variance weights of eq. 27 the view could
+    /// carry at most 1/ratio² of the run's weight (ratio 2.5: σ shrinks by at most 7 %). Saves the
+    /// short-baseline views after a keyframe. Dimensionless; 0 searches every view.
+    pub max_view_std_ratio: f32,
     /// Votes needed in the consistent run for a point to be output (a propagated prior is one
     /// vote; DPPTAM needs a run of 4).
     pub min_consistent_views: usize,
@@ -189,7 +205,9 @@ impl Default for SemidenseConfig {
             match_std_px: 0.5,
             consistency_sigmas: 2.0,
             search_sigmas: 3.0,
+            first_estimate_search_sigmas: 6.0,
             give_up_after_searches: 6,
+            max_view_std_ratio: 2.5,
             min_consistent_views: 3,
             max_rel_inv_depth_std: 0.05,
             neighbour_radius_px: 2,
@@ -265,6 +283,9 @@ pub struct ObserveStats {
     pub out_of_range: usize,
     /// Not searched any more (`give_up_after_searches`).
     pub given_up: usize,
+    /// Not searched in this view: too little parallax to improve the pixel's fused estimate
+    /// (`max_view_std_ratio`).
+    pub converged: usize,
 }
 
 impl ObserveStats {
@@ -279,6 +300,7 @@ impl ObserveStats {
         self.ambiguous += o.ambiguous;
         self.out_of_range += o.out_of_range;
         self.given_up += o.given_up;
+        self.converged += o.converged;
         self
     }
 }

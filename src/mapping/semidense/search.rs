@@ -9,7 +9,7 @@ use nalgebra::{Matrix2, Vector2};
 
 /// Template half-size: 7x7 (eq. 28).
 const HALF: i32 = 3;
-const PATCH: usize = 49;
+pub(crate) const PATCH: usize = 49;
 /// The distorted epipolar curve is evaluated exactly every this many pixels, straight between.
 const KNOT_PX: f64 = 16.0;
 /// Longest walk, px (longer than any image diagonal the mapper is meant for).
@@ -66,6 +66,26 @@ pub(crate) struct KeyframePixel<'a> {
     pub jinv: Matrix2<f64>,
     /// Unit image gradient.
     pub grad_dir: [f32; 2],
+    /// The zero-mean 7x7 template around the pixel (see [`template`]).
+    pub template: &'a [f32; PATCH],
+}
+
+/// The zero-mean 7x7 template of eq. 28 around pixel `(x, y)` of `image` (row-major; the pixel
+/// must be at least 3 px inside the image). The same for every view, so computed once.
+pub(crate) fn template(image: &Image<f32>, x: usize, y: usize) -> [f32; PATCH] {
+    let (d, s) = (image.data(), image.stride());
+    let mut t7 = [0.0f32; PATCH];
+    let mut k = 0;
+    for dy in -HALF..=HALF {
+        let row = ((y as i32 + dy) as usize) * s;
+        for dx in -HALF..=HALF {
+            t7[k] = d[row + (x as i32 + dx) as usize];
+            k += 1;
+        }
+    }
+    let m7 = t7.iter().sum::<f32>() / PATCH as f32;
+    t7.iter_mut().for_each(|t| *t -= m7);
+    t7
 }
 
 /// Bilinear sample with the 2x2 cell known to be inside.
@@ -74,26 +94,11 @@ fn sample(d: &[f32], stride: usize, x: f32, y: f32) -> f32 {
     let (x0, y0) = (x as usize, y as usize);
     let (fx, fy) = (x - x0 as f32, y - y0 as f32);
     let i = y0 * stride + x0;
-    let (a, b, c, e) = (d[i], d[i + 1], d[i + stride], d[i + stride + 1]);
+    let cell = &d[i..i + stride + 2]; // one bounds check for the four corners
+    let (a, b, c, e) = (cell[0], cell[1], cell[stride], cell[stride + 1]);
     let top = a + fx * (b - a);
     let bot = c + fx * (e - c);
     top + fy * (bot - top)
-}
-
-/// Bilinear sample and gradient with the 2x2 cell known to be inside.
-#[inline(always)]
-fn sample_grad(d: &[f32], stride: usize, x: f32, y: f32) -> (f32, f32, f32) {
-    let (x0, y0) = (x as usize, y as usize);
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let i = y0 * stride + x0;
-    let (a, b, c, e) = (d[i], d[i + 1], d[i + stride], d[i + stride + 1]);
-    let top = a + fx * (b - a);
-    let bot = c + fx * (e - c);
-    (
-        top + fy * (bot - top),
-        (b - a) + fy * ((e - c) - (b - a)),
-        bot - top,
-    )
 }
 
 #[inline(always)]
@@ -121,20 +126,91 @@ fn patch_cost(img: &Image<f32>, u: [f32; 2], a: &[f32; 4], t: &[f32; PATCH]) -> 
     if !patch_inside(img, u, a) {
         return None;
     }
-    let (d, s) = (img.data(), img.stride());
-    let (mut sv, mut sd2) = (0.0f32, 0.0f32);
-    let mut k = 0;
-    for dy in -HALF..=HALF {
-        let (bx, by) = (u[0] + a[1] * dy as f32, u[1] + a[3] * dy as f32);
-        for dx in -HALF..=HALF {
-            let v = sample(d, s, bx + a[0] * dx as f32, by + a[2] * dx as f32);
-            let r = v - t[k];
-            sv += v;
-            sd2 += r * r;
-            k += 1;
+    // Lane-wise sums as in `patch_cost_gn` (the same order, so the two costs compare exactly).
+    let (mut sv, mut sd2) = ([0.0f32; LANES], [0.0f32; LANES]);
+    for (row, dy) in (-HALF..=HALF).enumerate() {
+        let c = Cells::gather(img, u, a, dy, t, row);
+        for k in 0..LANES {
+            let (v, _, _) = c.interpolate(k);
+            let r = v - c.t[k];
+            sv[k] += v;
+            sd2[k] += r * r;
         }
     }
+    let (sv, sd2) = (lane_sum(sv), lane_sum(sd2));
     Some(sd2 - sv * sv / PATCH as f32)
+}
+
+/// Lanes of the row-wise patch sums: the 7 columns and a zero pad (for SIMD).
+const LANES: usize = 8;
+
+#[inline(always)]
+fn lane_sum(x: [f32; LANES]) -> f32 {
+    ((x[0] + x[4]) + (x[1] + x[5])) + ((x[2] + x[6]) + (x[3] + x[7]))
+}
+
+/// One row of the warped 7x7 patch: the corners of each sample's bilinear cell, its weights and
+/// the template values (the pad lane is all zero: it adds nothing to any sum). Gathered first, so
+/// that the interpolation and the sums run lane by lane.
+struct Cells {
+    a: [f32; LANES],
+    b: [f32; LANES],
+    c: [f32; LANES],
+    e: [f32; LANES],
+    fx: [f32; LANES],
+    fy: [f32; LANES],
+    t: [f32; LANES],
+}
+
+impl Cells {
+    /// Row `dy` of the patch `u + A δ` (known to be inside), with template row `row`.
+    #[inline(always)]
+    fn gather(
+        img: &Image<f32>,
+        u: [f32; 2],
+        a: &[f32; 4],
+        dy: i32,
+        t: &[f32; PATCH],
+        row: usize,
+    ) -> Self {
+        let (d, s) = (img.data(), img.stride());
+        let (bx, by) = (u[0] + a[1] * dy as f32, u[1] + a[3] * dy as f32);
+        let mut c = Cells {
+            a: [0.0; LANES],
+            b: [0.0; LANES],
+            c: [0.0; LANES],
+            e: [0.0; LANES],
+            fx: [0.0; LANES],
+            fy: [0.0; LANES],
+            t: [0.0; LANES],
+        };
+        for k in 0..7 {
+            let dx = k as f32 - HALF as f32;
+            let (x, y) = (bx + a[0] * dx, by + a[2] * dx);
+            let (x0, y0) = (x as usize, y as usize);
+            c.fx[k] = x - x0 as f32;
+            c.fy[k] = y - y0 as f32;
+            let i = y0 * s + x0;
+            let cell = &d[i..i + s + 2]; // one bounds check for the four corners
+            (c.a[k], c.b[k], c.c[k], c.e[k]) = (cell[0], cell[1], cell[s], cell[s + 1]);
+            c.t[k] = t[row * 7 + k];
+        }
+        c
+    }
+
+    /// Bilinear value and gradient of lane `k` (as [`sample`]).
+    #[inline(always)]
+    fn interpolate(&self, k: usize) -> (f32, f32, f32) {
+        let (a, b, c, e) = (self.a[k], self.b[k], self.c[k], self.e[k]);
+        let (fx, fy) = (self.fx[k], self.fy[k]);
+        let top = a + fx * (b - a);
+        let bot = c + fx * (e - c);
+        (
+            top + fy * (bot - top),
+            (b - a) + fy * ((e - c) - (b - a)),
+            bot - top,
+        )
+    }
 }
 
 /// Zero-mean SSD as [`patch_cost`] plus the Gauss–Newton terms `(Σ r J, Σ J²)` for a shift of the
@@ -149,23 +225,28 @@ fn patch_cost_gn(
     if !patch_inside(img, u, a) {
         return None;
     }
-    let (d, s) = (img.data(), img.stride());
-    let (mut sv, mut sd2, mut sdj, mut sj, mut sjj) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
-    let mut k = 0;
-    for dy in -HALF..=HALF {
-        let (bx, by) = (u[0] + a[1] * dy as f32, u[1] + a[3] * dy as f32);
-        for dx in -HALF..=HALF {
-            let (v, gx, gy) = sample_grad(d, s, bx + a[0] * dx as f32, by + a[2] * dx as f32);
-            let r = v - t[k];
+    let z = [0.0f32; LANES];
+    let (mut sv, mut sd2, mut sdj, mut sj, mut sjj) = (z, z, z, z, z);
+    for (row, dy) in (-HALF..=HALF).enumerate() {
+        let c = Cells::gather(img, u, a, dy, t, row);
+        for k in 0..LANES {
+            let (v, gx, gy) = c.interpolate(k);
+            let r = v - c.t[k];
             let j = gx * ut[0] + gy * ut[1];
-            sv += v;
-            sd2 += r * r;
-            sdj += r * j;
-            sj += j;
-            sjj += j * j;
-            k += 1;
+            sv[k] += v;
+            sd2[k] += r * r;
+            sdj[k] += r * j;
+            sj[k] += j;
+            sjj[k] += j * j;
         }
     }
+    let (sv, sd2, sdj, sj, sjj) = (
+        lane_sum(sv),
+        lane_sum(sd2),
+        lane_sum(sdj),
+        lane_sum(sj),
+        lane_sum(sjj),
+    );
     let n = PATCH as f32;
     // residuals r − mean(r) and Jacobians j − mean(j) (the patch mean moves with the patch)
     Some((sd2 - sv * sv / n, sdj - sv / n * sj, sjj - sj * sj / n))
@@ -183,6 +264,107 @@ impl Minima {
         } else if c < self.0[1].0 {
             self.0[1] = (c, s);
         }
+    }
+}
+
+/// Samples buffered by the scan before they are scored: a chunk plus the 4 previous samples that
+/// the first windows of the chunk still span.
+const SCAN_BUF: usize = 64;
+
+/// The epipolar scan's 5-sample zero-mean SSD and its two best interior minima. Samples are
+/// buffered and scored a chunk at a time: the window costs of a chunk are independent of each
+/// other (a loop the compiler vectorises); only the minima search runs sample by sample.
+struct Scan {
+    t5: [f32; 5],
+    st5: f32,
+    /// Samples (NaN outside the image) and their curve parameters; `n` are filled.
+    w: [f32; SCAN_BUF],
+    s: [f64; SCAN_BUF],
+    n: usize,
+    /// Costs of the two windows before the next one (∞ after a gap or at the start).
+    c_prev2: f32,
+    c_prev: f32,
+    minima: Minima,
+}
+
+impl Scan {
+    fn new(t5: [f32; 5], st5: f32) -> Self {
+        Scan {
+            t5,
+            st5,
+            w: [0.0; SCAN_BUF],
+            s: [0.0; SCAN_BUF],
+            n: 0,
+            c_prev2: f32::INFINITY,
+            c_prev: f32::INFINITY,
+            minima: Minima([(f32::INFINITY, f64::NAN); 2]),
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, v: f32, s: f64) {
+        self.w[self.n] = v;
+        self.s[self.n] = s;
+        self.n += 1;
+        if self.n == SCAN_BUF {
+            self.flush();
+            // keep the last 4 samples: the next windows still span them
+            self.w.copy_within(SCAN_BUF - 4.., 0);
+            self.s.copy_within(SCAN_BUF - 4.., 0);
+            self.n = 4;
+        }
+    }
+
+    /// Scores the windows ending at samples `4..n` (those before were scored by the previous
+    /// chunk) and updates the minima.
+    fn flush(&mut self) {
+        let n = self.n;
+        if n < 5 {
+            return;
+        }
+        let m = n - 4;
+        let t = self.t5;
+        let st5 = self.st5;
+        let w = &self.w;
+        let (w0, w1, w2, w3, w4) = (&w[..m], &w[1..m + 1], &w[2..m + 2], &w[3..m + 3], &w[4..n]);
+        let mut c = [0.0f32; SCAN_BUF];
+        for (k, ck) in c[..m].iter_mut().enumerate() {
+            let (a, b, d, e, f) = (w0[k], w1[k], w2[k], w3[k], w4[k]);
+            let sv = a + b + d + e + f;
+            let svv = a * a + b * b + d * d + e * e + f * f;
+            let svt = a * t[0] + b * t[1] + d * t[2] + e * t[3] + f * t[4];
+            *ck = svv - sv * sv * 0.2 - 2.0 * svt + st5;
+        }
+        let (mut c_prev2, mut c_prev) = (self.c_prev2, self.c_prev);
+        for (k, &ck) in c[..m].iter().enumerate() {
+            if ck.is_nan() {
+                // a window over a gap: the scan restarts after it
+                (c_prev2, c_prev) = (f32::INFINITY, f32::INFINITY);
+                continue;
+            }
+            // Only interior minima: one at the end of the scan (or of a gap) may continue outside
+            // the range, and then the match is elsewhere. (Tested first: beating the second best,
+            // rarely true once the scan is under way, so the branch predicts well.)
+            if c_prev < self.minima.0[1].0
+                && c_prev <= c_prev2
+                && c_prev < ck
+                && c_prev2 < f32::INFINITY
+            {
+                // sub-sample position from the parabola through the three costs; the window
+                // ending at sample k + 4 is centred on sample k + 2
+                let den = c_prev2 - 2.0 * c_prev + ck;
+                let d = if den > 0.0 {
+                    (0.5 * (c_prev2 - ck) / den).clamp(-0.5, 0.5)
+                } else {
+                    0.0
+                };
+                let s = &self.s;
+                self.minima
+                    .push(c_prev, s[k + 1] + d as f64 * 0.5 * (s[k + 2] - s[k]));
+            }
+            (c_prev2, c_prev) = (c_prev, ck);
+        }
+        (self.c_prev2, self.c_prev) = (c_prev2, c_prev);
     }
 }
 
@@ -254,7 +436,8 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         a[(1, 1)] as f32,
     ];
 
-    // Templates: 5 samples along the keyframe's epipolar direction, and the 7x7 square; zero-mean.
+    // Templates: 5 samples along the keyframe's epipolar direction (and the 7x7 square, given);
+    // zero-mean.
     let (kd, ks) = (kp.image.data(), kp.image.stride());
     let (x, y) = (kp.x as f32, kp.y as f32);
     let (dkx, dky) = (dk.x as f32, dk.y as f32);
@@ -270,17 +453,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     let m5 = t5.iter().sum::<f32>() / 5.0;
     t5.iter_mut().for_each(|t| *t -= m5);
     let st5: f32 = t5.iter().map(|t| t * t).sum();
-    let mut t7 = [0.0f32; PATCH];
-    let mut k = 0;
-    for dy in -HALF..=HALF {
-        let row = ((kp.y as i32 + dy) as usize) * ks;
-        for dx in -HALF..=HALF {
-            t7[k] = kd[row + (kp.x as i32 + dx) as usize];
-            k += 1;
-        }
-    }
-    let m7 = t7.iter().sum::<f32>() / PATCH as f32;
-    t7.iter_mut().for_each(|t| *t -= m7);
+    let t7 = kp.template;
 
     // Epipolar scan: 1-px steps along the curve, exact at knots, 5-sample zero-mean SSD.
     let (vd, vs) = (ctx.image.data(), ctx.image.stride());
@@ -296,12 +469,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
         .ceil()
         .max(1.0) as usize;
     let ds_seg = (s_b - s_a) / n_seg as f64;
-    let mut w = [0.0f32; 5];
-    let mut ws = [0.0f64; 3];
-    let mut filled = 0usize; // consecutive valid samples
-    let (mut c_prev2, mut c_prev) = (f32::INFINITY, f32::INFINITY);
-    let (mut s_prev2, mut s_prev) = (0.0f64, 0.0f64);
-    let mut minima = Minima([(f32::INFINITY, f64::NAN); 2]);
+    let mut scan = Scan::new(t5, st5);
     let mut s_k = s_a;
     let mut u_k = pix(s_k);
     let mut off = 0.0f32;
@@ -325,44 +493,19 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             let (ux, uy) = (u_k[0] + off * stx, u_k[1] + off * sty);
             let s = s_k + off as f64 * sts;
             off += 1.0;
-            if !(ux >= 0.0 && uy >= 0.0 && ux < x_lim && uy < y_lim) {
-                filled = 0;
-                (c_prev2, c_prev) = (f32::INFINITY, f32::INFINITY);
-                continue;
-            }
-            // the window (last 5 samples, oldest first) is shifted in registers
-            w = [w[1], w[2], w[3], w[4], sample(vd, vs, ux, uy)];
-            ws = [ws[1], ws[2], s];
-            filled += 1;
-            if filled < 5 {
-                continue;
-            }
-            let sv = w[0] + w[1] + w[2] + w[3] + w[4];
-            let svv = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + w[3] * w[3] + w[4] * w[4];
-            let svt = w[0] * t5[0] + w[1] * t5[1] + w[2] * t5[2] + w[3] * t5[3] + w[4] * t5[4];
-            let c = svv - sv * sv * 0.2 - 2.0 * svt + st5;
-            // Only interior minima: one at the end of the scan (or of a gap) may continue outside
-            // the range, and then the match is elsewhere. (Tested first: beating the second best,
-            // rarely true once the scan is under way, so the branch predicts well.)
-            if c_prev < minima.0[1].0 && c_prev <= c_prev2 && c_prev < c && c_prev2 < f32::INFINITY
-            {
-                // sub-sample position from the parabola through the three costs
-                let den = c_prev2 - 2.0 * c_prev + c;
-                let d = if den > 0.0 {
-                    (0.5 * (c_prev2 - c) / den).clamp(-0.5, 0.5)
-                } else {
-                    0.0
-                };
-                minima.push(c_prev, s_prev + d as f64 * 0.5 * (ws[0] - s_prev2));
-            }
-            // the window's centre sample was taken 2 steps ago
-            (c_prev2, c_prev) = (c_prev, c);
-            (s_prev2, s_prev) = (s_prev, ws[0]);
+            let v = if ux >= 0.0 && uy >= 0.0 && ux < x_lim && uy < y_lim {
+                sample(vd, vs, ux, uy)
+            } else {
+                f32::NAN // a gap: no window containing it is scored
+            };
+            scan.push(v, s);
         }
         off -= len;
         s_k = s_k1;
         u_k = u_k1;
     }
+    scan.flush();
+    let minima = scan.minima;
     if !minima.0[0].0.is_finite() {
         return Outcome::OutOfRange;
     }
@@ -376,7 +519,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
             ctx.image,
             [u.x as f32, u.y as f32],
             &af,
-            &t7,
+            t7,
             [ut.x as f32, ut.y as f32],
         )
         .map(|(c, g, h)| (c, g, h, ut.norm()))
@@ -385,7 +528,7 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     let check_second = c2_scan <= SECOND_SCAN_RATIO * minima.0[0].0.max(SCAN_NOISE_FLOOR);
     let first = gn_at(s1);
     let second = if check_second {
-        patch_cost(ctx.image, pix(s2), &af, &t7)
+        patch_cost(ctx.image, pix(s2), &af, t7)
     } else {
         None
     };
