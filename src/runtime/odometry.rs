@@ -212,6 +212,7 @@ pub struct Odometry {
     stats: OdometryStats,
     /// Keyframe states joined by the IMU and by tracked relative poses.
     window: KeyframeWindow,
+
     /// Poses sent to the mapper are `mapper_from_world · T_world_cam`: the mapper's world is
     /// chained through the keyframes' *relative* poses, so the window's corrections never make a
     /// keyframe's views inconsistent with its pose in the mapper.
@@ -258,6 +259,7 @@ impl Odometry {
             last_inlier_ratio: 1.0,
             stats: OdometryStats::default(),
             window: KeyframeWindow::new(cfg.window.clone(), rig.noise),
+
             mapper_from_world: Isometry3::identity(),
             mapper_kf_pose: None,
             cfg,
@@ -529,6 +531,7 @@ impl Odometry {
         let old = result.state;
         self.window.push(id, old, pre, visual);
         self.window.solve();
+
         let (_, x_new) = self.window.newest()?;
         let mut x_new = *x_new;
         x_new.nav.t = t;

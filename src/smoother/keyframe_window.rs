@@ -41,6 +41,10 @@ pub struct WindowConfig {
     /// photometric σ of 0.002° and 0.07 mm.
     pub visual_rotation_information_scale: f64,
     pub visual_translation_information_scale: f64,
+    /// Huber threshold of a relative pose's Mahalanobis norm (after the scales above): beyond it
+    /// the factor is down-weighted, so a keyframe tracked against a distorted map cannot drag the
+    /// window away from the IMU (0 = plain least squares).
+    pub visual_huber_sigmas: f64,
     /// Multiplies the IMU white-noise densities (as `[tracking] imu_noise_scale`).
     pub imu_noise_scale: f64,
     /// Levenberg-Marquardt iterations per solve.
@@ -54,6 +58,7 @@ impl Default for WindowConfig {
             max_keyframes: 6,
             visual_rotation_information_scale: 1e-3,
             visual_translation_information_scale: 1e-3,
+            visual_huber_sigmas: 3.0,
             imu_noise_scale: 3.0,
             max_iterations: 8,
         }
@@ -302,10 +307,19 @@ impl KeyframeWindow {
                 add_pair(&mut h, &mut rhs, i, j, &ji, &jj, &w, &r);
             }
             if let Some(vis) = &node.visual {
-                let w = self.visual_weight(&vis.information);
+                let mut w = self.visual_weight(&vis.information);
                 let r = vis.residual(xi, xj);
                 let (ji, jj) = vis.jacobians(xi, xj);
-                cost += 0.5 * r.dot(&(w * r));
+                // Huber on the Mahalanobis norm (IRLS weight k/‖r‖ beyond k).
+                let s = r.dot(&(w * r));
+                let k = self.cfg.visual_huber_sigmas;
+                if k > 0.0 && s > k * k {
+                    let norm = s.sqrt();
+                    cost += 0.5 * (2.0 * k * norm - k * k);
+                    w *= k / norm;
+                } else {
+                    cost += 0.5 * s;
+                }
                 add_pair(&mut h, &mut rhs, i, j, &ji, &jj, &w, &r);
             }
         }
