@@ -58,7 +58,7 @@ impl Default for WindowConfig {
             max_keyframes: 6,
             visual_rotation_information_scale: 1e-3,
             visual_translation_information_scale: 1e-3,
-            visual_huber_sigmas: 3.0,
+            visual_huber_sigmas: 0.0,
             imu_noise_scale: 3.0,
             max_iterations: 8,
         }
