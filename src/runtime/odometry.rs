@@ -181,6 +181,8 @@ pub struct OdometryStats {
     pub resets: u32,
     pub keyframes: usize,
     pub jobs_dropped: usize,
+    /// Wall time of each keyframe-window solve (on the tracking thread), s.
+    pub window_solve_s: Vec<f64>,
 }
 
 /// The odometry of one camera + IMU rig.
@@ -214,8 +216,12 @@ pub struct Odometry {
     window: KeyframeWindow,
 
     /// Poses sent to the mapper are `mapper_from_world · T_world_cam`: the mapper's world is
-    /// chained through the keyframes' *relative* poses, so the window's corrections never make a
-    /// keyframe's views inconsistent with its pose in the mapper.
+    /// chained through the keyframes' corrected *relative* poses, so a keyframe the mapper holds
+    /// never moves there; a new keyframe and its history frames are moved together by the
+    /// window's correction. (The frames tracked next against the corrected previous keyframe
+    /// carry that correction relative to the new one: this is how the IMU's scale reaches the
+    /// maps. Sending the mapper the pure tracked chain instead let the map scale, and with it the
+    /// velocity, drift on the demo.)
     mapper_from_world: Isometry3<f64>,
     /// Camera pose of the newest keyframe as the mapper holds it.
     mapper_kf_pose: Option<(u32, Isometry3<f64>)>,
@@ -530,7 +536,12 @@ impl Odometry {
         };
         let old = result.state;
         self.window.push(id, old, pre, visual);
+        let started = std::time::Instant::now();
         self.window.solve();
+        let solve_s = started.elapsed().as_secs_f64();
+        self.stats.window_solve_s.push(solve_s);
+        // The frame's tracking-thread time includes the window it triggered.
+        result.time_s += solve_s;
 
         let (_, x_new) = self.window.newest()?;
         let mut x_new = *x_new;

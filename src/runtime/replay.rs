@@ -142,6 +142,8 @@ pub struct ReplayOutput {
     pub frames_in: usize,
     /// Keyframes created.
     pub keyframes: usize,
+    /// Wall time of each keyframe-window solve, s.
+    pub window_solve_s: Vec<f64>,
 }
 
 /// Progress callback: `(frames done, frames total)`.
@@ -278,6 +280,7 @@ fn replay_full(
     out.resets = stats.resets;
     out.keyframes = stats.keyframes;
     out.jobs_dropped = stats.jobs_dropped;
+    out.window_solve_s = stats.window_solve_s;
     out.mapping = mapping;
     Ok(out)
 }

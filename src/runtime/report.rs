@@ -52,6 +52,11 @@ pub struct ReplayReport {
     pub mapping_ms_mean: f64,
     pub mapping_ms_p50: f64,
     pub mapping_ms_p99: f64,
+    /// Keyframe-window solves (each on the tracking thread, included in that frame's
+    /// `tracking_ms`) and their wall time, ms.
+    pub window_solves: usize,
+    pub window_ms_p50: f64,
+    pub window_ms_max: f64,
     /// Semidense points over all keyframes.
     pub semidense_points: usize,
     /// Sim3 scale error of the trajectory up to each time (from the first pose), %.
@@ -76,6 +81,8 @@ impl ReplayReport {
         let pct = |p: f64| percentile(&ms, p);
         let mut map_ms: Vec<f64> = out.mapping.job_times_s.iter().map(|t| t * 1e3).collect();
         map_ms.sort_by(f64::total_cmp);
+        let mut window_ms: Vec<f64> = out.window_solve_s.iter().map(|t| t * 1e3).collect();
+        window_ms.sort_by(f64::total_cmp);
         let mut phases = BTreeMap::new();
         for p in &out.phases {
             *phases.entry(p.as_str().to_string()).or_insert(0) += 1;
@@ -142,6 +149,9 @@ impl ReplayReport {
             },
             mapping_ms_p50: percentile(&map_ms, 50.0),
             mapping_ms_p99: percentile(&map_ms, 99.0),
+            window_solves: out.window_solve_s.len(),
+            window_ms_p50: percentile(&window_ms, 50.0),
+            window_ms_max: window_ms.iter().copied().fold(0.0, f64::max),
             semidense_points: out
                 .mapping
                 .keyframe_maps
@@ -238,6 +248,15 @@ impl ReplayReport {
                     self.mapping_ms_mean,
                     self.mapping_ms_p50,
                     self.mapping_ms_p99
+                ),
+            );
+        }
+        if self.window_solves > 0 {
+            row(
+                "keyframe window",
+                format!(
+                    "{} solves, ms p50/max {:.2} / {:.2}",
+                    self.window_solves, self.window_ms_p50, self.window_ms_max
                 ),
             );
         }
