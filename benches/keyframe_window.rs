@@ -4,7 +4,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
-use vidslam::imu::{FrameState, ImuBias, ImuNoise, Matrix15, NavState, Preintegration};
+use vidslam::imu::{FrameState, ImuBias, ImuNoise, Matrix15, Preintegration};
 use vidslam::sim::flights::builtin_flight;
 use vidslam::sim::imu_synth::ideal_imu;
 use vidslam::sim::{PoseSpline, fit_pose_spline};
@@ -15,14 +15,8 @@ use vidslam::tracking::pose_of;
 const KF_PERIOD_NS: i64 = 250_000_000;
 
 fn truth(sp: &PoseSpline, t: TimeNs) -> FrameState {
-    let s = sp.state(t);
     FrameState {
-        nav: NavState {
-            t,
-            r_world_body: s.t_world_body.rotation,
-            p_world_m: s.t_world_body.translation.vector,
-            v_world_m_s: s.v_world_m_s,
-        },
+        nav: sp.nav_state(t),
         bias: ImuBias::default(),
     }
 }

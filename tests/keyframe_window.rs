@@ -4,7 +4,7 @@
 //! cannot do once a keyframe is wrong.
 
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
-use vidslam::imu::{FrameState, ImuBias, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
+use vidslam::imu::{FrameState, ImuBias, ImuNoise, ImuSample, Matrix15, Preintegration};
 use vidslam::sim::flights::builtin_flight;
 use vidslam::sim::imu_synth::ideal_imu;
 use vidslam::sim::{PoseSpline, fit_pose_spline};
@@ -21,23 +21,33 @@ fn flight() -> PoseSpline {
 }
 
 fn truth(sp: &PoseSpline, t: TimeNs) -> FrameState {
-    let s = sp.state(t);
     FrameState {
-        nav: NavState {
-            t,
-            r_world_body: s.t_world_body.rotation,
-            p_world_m: s.t_world_body.translation.vector,
-            v_world_m_s: s.v_world_m_s,
-        },
+        nav: sp.nav_state(t),
         bias: ImuBias::default(),
     }
 }
 
-fn imu(sp: &PoseSpline, from: TimeNs, to: TimeNs) -> Vec<ImuSample> {
-    let n = (to.0 - from.0) / 5_000_000;
-    (0..=n)
-        .map(|k| ideal_imu(sp, from.add_ns(k * 5_000_000)))
-        .collect()
+/// The noise-free IMU from keyframe state `from` to `t`, preintegrated at its bias.
+fn preintegrate(sp: &PoseSpline, from: &FrameState, t: TimeNs) -> Preintegration {
+    let n = (t.0 - from.nav.t.0) / 5_000_000;
+    let imu: Vec<ImuSample> = (0..=n)
+        .map(|k| ideal_imu(sp, from.nav.t.add_ns(k * 5_000_000)))
+        .collect();
+    let mut pre = Preintegration::new(from.nav.t, from.bias);
+    pre.integrate(&imu, t, Some(&ImuNoise::euroc_adis16448()));
+    pre
+}
+
+/// A window that trusts the relative poses and the (noise-free) IMU at face value.
+fn window(max_keyframes: usize) -> KeyframeWindow {
+    let cfg = WindowConfig {
+        visual_rotation_information_scale: 1.0,
+        visual_translation_information_scale: 1.0,
+        imu_noise_scale: 1.0,
+        max_keyframes,
+        ..WindowConfig::default()
+    };
+    KeyframeWindow::new(cfg, ImuNoise::euroc_adis16448())
 }
 
 fn relative(a: &FrameState, b: &FrameState) -> RelativePose {
@@ -71,14 +81,7 @@ fn tilt_err_deg(x: &FrameState, t: &FrameState) -> f64 {
 /// over the last 8 solves: (position m, tilt deg, velocity m/s, accel bias m/s²).
 fn run(perturb: impl Fn(&FrameState) -> FrameState) -> (f64, f64, f64, f64) {
     let sp = flight();
-    let noise = ImuNoise::euroc_adis16448();
-    let cfg = WindowConfig {
-        visual_rotation_information_scale: 1.0,
-        visual_translation_information_scale: 1.0,
-        imu_noise_scale: 1.0,
-        ..WindowConfig::default()
-    };
-    let mut w = KeyframeWindow::new(cfg, noise);
+    let mut w = window(WindowConfig::default().max_keyframes);
     let t0 = sp.start().add_ns(10_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());
@@ -87,9 +90,7 @@ fn run(perturb: impl Fn(&FrameState) -> FrameState) -> (f64, f64, f64, f64) {
     for k in 1..=24u32 {
         let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
         let xt = truth(&sp, t);
-        let (_, x_prev) = w.newest().map(|(i, x)| (i, *x)).unwrap();
-        let mut pre = Preintegration::new(x_prev.nav.t, x_prev.bias);
-        pre.integrate(&imu(&sp, x_prev.nav.t, t), t, Some(&noise));
+        let pre = preintegrate(&sp, w.newest().unwrap().1, t);
         w.push(k, perturb(&xt), pre, Some(relative(&prev_true, &xt)));
         w.solve();
         prev_true = xt;
@@ -134,16 +135,8 @@ fn wrong_tilt_velocity_and_bias_guesses_are_corrected() {
 fn chained(max_keyframes: usize) -> Vec<FrameState> {
     use vidslam::sim::rng::SimRng;
     let sp = flight();
-    let noise = ImuNoise::euroc_adis16448();
-    let cfg = WindowConfig {
-        visual_rotation_information_scale: 1.0,
-        visual_translation_information_scale: 1.0,
-        imu_noise_scale: 1.0,
-        max_keyframes,
-        ..WindowConfig::default()
-    };
     let mut rng = SimRng::new(5);
-    let mut w = KeyframeWindow::new(cfg, noise);
+    let mut w = window(max_keyframes);
     let t0 = sp.start().add_ns(5_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());
@@ -152,8 +145,7 @@ fn chained(max_keyframes: usize) -> Vec<FrameState> {
     for k in 1..=100u32 {
         let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
         let xt = truth(&sp, t);
-        let mut pre = Preintegration::new(prev_est.nav.t, prev_est.bias);
-        pre.integrate(&imu(&sp, prev_est.nav.t, t), t, Some(&noise));
+        let pre = preintegrate(&sp, &prev_est, t);
         let mut z = relative(&prev_true, &xt);
         z.t_i_j *= Isometry3::new(
             Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.002,

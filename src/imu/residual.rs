@@ -32,6 +32,16 @@ pub struct FrameState {
 }
 
 impl FrameState {
+    /// Every component (pose, velocity, biases) is finite.
+    pub fn is_finite(&self) -> bool {
+        let n = &self.nav;
+        n.p_world_m.iter().all(|v| v.is_finite())
+            && n.v_world_m_s.iter().all(|v| v.is_finite())
+            && n.r_world_body.coords.iter().all(|v| v.is_finite())
+            && self.bias.gyro_rad_s.iter().all(|v| v.is_finite())
+            && self.bias.accel_m_s2.iter().all(|v| v.is_finite())
+    }
+
     /// Applies an increment `[δθ, δt, δv, δbω, δba]` (eq. 34, 36, 38).
     pub fn boxplus(&self, d: &Vector15) -> FrameState {
         let r = self.nav.r_world_body.to_rotation_matrix();

@@ -214,7 +214,6 @@ pub struct Odometry {
     stats: OdometryStats,
     /// Keyframe states joined by the IMU and by tracked relative poses.
     window: KeyframeWindow,
-
     /// Poses sent to the mapper are `mapper_from_world · T_world_cam`: the mapper's world is
     /// chained through the keyframes' corrected *relative* poses, so a keyframe the mapper holds
     /// never moves there; a new keyframe and its history frames are moved together by the
@@ -265,7 +264,6 @@ impl Odometry {
             last_inlier_ratio: 1.0,
             stats: OdometryStats::default(),
             window: KeyframeWindow::new(cfg.window.clone(), rig.noise),
-
             mapper_from_world: Isometry3::identity(),
             mapper_kf_pose: None,
             cfg,
@@ -546,7 +544,7 @@ impl Odometry {
         let (_, x_new) = self.window.newest()?;
         let mut x_new = *x_new;
         x_new.nav.t = t;
-        if !state_is_finite(&x_new) {
+        if !x_new.is_finite() {
             self.reset_window();
             return None;
         }
@@ -742,14 +740,6 @@ impl Odometry {
             }
         }
     }
-}
-
-fn state_is_finite(x: &FrameState) -> bool {
-    x.nav.p_world_m.iter().all(|v| v.is_finite())
-        && x.nav.v_world_m_s.iter().all(|v| v.is_finite())
-        && x.nav.r_world_body.coords.iter().all(|v| v.is_finite())
-        && x.bias.gyro_rad_s.iter().all(|v| v.is_finite())
-        && x.bias.accel_m_s2.iter().all(|v| v.is_finite())
 }
 
 /// At rest at the origin with attitude `r_world_body` and gyro bias `bg`.

@@ -204,6 +204,17 @@ impl PoseSpline {
         isometry(&r, &p)
     }
 
+    /// The body's navigation state (pose and velocity) at `t` (clamped to the span).
+    pub fn nav_state(&self, t: TimeNs) -> crate::imu::NavState {
+        let s = self.state(t);
+        crate::imu::NavState {
+            t,
+            r_world_body: s.t_world_body.rotation,
+            p_world_m: s.t_world_body.translation.vector,
+            v_world_m_s: s.v_world_m_s,
+        }
+    }
+
     /// Pose, velocities and accelerations at `t` (clamped to the span).
     pub fn state(&self, t: TimeNs) -> SplineState {
         let (i, s) = self.locate(t);

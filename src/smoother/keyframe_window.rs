@@ -128,10 +128,6 @@ impl KeyframeWindow {
         }
     }
 
-    pub fn config(&self) -> &WindowConfig {
-        &self.cfg
-    }
-
     pub fn len(&self) -> usize {
         self.nodes.len()
     }
@@ -169,11 +165,6 @@ impl KeyframeWindow {
     /// The newest keyframe's id and state.
     pub fn newest(&self) -> Option<(u32, &FrameState)> {
         self.nodes.back().map(|n| (n.id, &n.state))
-    }
-
-    /// Ids and states of all keyframes in the window, oldest first.
-    pub fn states(&self) -> impl Iterator<Item = (u32, &FrameState)> {
-        self.nodes.iter().map(|n| (n.id, &n.state))
     }
 
     /// Adds keyframe `id` at state `x` (the tracker's estimate), joined to the newest keyframe by

@@ -372,12 +372,8 @@ impl Tracker {
         res.overlap = ph.num_valid as f64 / n0;
         res.residual_rms_gray = ph.inlier_rms_gray();
         res.imu_chi2 = fin.r_imu.dot(&(a_imu * fin.r_imu));
-        let all_finite = fin.cost.is_finite()
-            && x.nav.p_world_m.iter().all(|v| v.is_finite())
-            && x.nav.v_world_m_s.iter().all(|v| v.is_finite())
-            && x.nav.r_world_body.coords.iter().all(|v| v.is_finite())
-            && aff.0.is_finite()
-            && aff.1.is_finite();
+        let all_finite =
+            fin.cost.is_finite() && x.is_finite() && aff.0.is_finite() && aff.1.is_finite();
         if !all_finite {
             res.flag = Some(FlagReason::NonFinite);
             return None;
