@@ -101,6 +101,7 @@ fn black_frames_lose_tracking_and_it_recovers_with_a_reset() {
             camera: ds.camera.model,
             t_body_cam: ds.camera.t_body_cam,
             noise: ds.imu.noise,
+            vignette: ds.vignette,
         },
     );
     let black = |k: usize| (70..75).contains(&k); // 0.25 s of covered lens while flying

@@ -27,6 +27,10 @@ fn warping_with_ground_truth_depth_and_pose_reproduces_the_next_frame() {
     generate(&cfg).unwrap();
 
     let ds = AslDataset::open(&dir).unwrap();
+    assert!(
+        ds.vignette.is_none(),
+        "an ideal render has no vignetting to calibrate"
+    );
     let cam = ds.camera.model;
     let t_bc = ds.camera.t_body_cam;
     let gt = ds.ground_truth().unwrap().unwrap();
@@ -90,5 +94,36 @@ fn warping_with_ground_truth_depth_and_pose_reproduces_the_next_frame() {
         assert!(n > w * h * 6 / 10, "too few comparable pixels: {n}");
         assert!(mean < 2.0, "mean abs error {mean}");
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A realistic render ships the photometric calibration of the vignetting it applied
+/// (`cam0/vignette.yaml`, read back by the dataset reader); the correction itself is tested in
+/// `camera::vignette`.
+#[test]
+fn realistic_renders_carry_their_vignetting_calibration() {
+    let dir = std::env::temp_dir().join(format!("vidslam-sim-vignette-{}", std::process::id()));
+    let mut cfg = SimConfig::new(
+        dir.clone(),
+        TrajectorySource::Builtin("demo".into()),
+        ImuSource::Synth,
+    );
+    cfg.seconds = Some(0.1);
+    cfg.force = true;
+    generate(&cfg).unwrap();
+    let ds = AslDataset::open(&dir).unwrap();
+    let v = ds.vignette.expect("cam0/vignette.yaml");
+    let cam = ds.camera.model;
+    assert_eq!(v.centre_px, [cam.cx, cam.cy]);
+    assert_eq!(v.factor(cam.cx, cam.cy), 1.0);
+    // The farthest corner loses the simulator's 35 %.
+    let corner = [(0.0, 0.0), (752.0, 0.0), (0.0, 480.0), (752.0, 480.0)]
+        .iter()
+        .map(|&(x, y)| v.factor(x, y))
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        (corner - (1.0 - vidslam::sim::exposure::VIGNETTING)).abs() < 1e-9,
+        "{corner}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -8,7 +8,10 @@
 use super::DatasetError;
 use super::csv_lines::CsvRows;
 use super::groundtruth::{GroundTruth, read_groundtruth};
-use super::sensor_yaml::{CameraSensor, ImuSensor, read_camera_yaml, read_imu_yaml};
+use super::sensor_yaml::{
+    CameraSensor, ImuSensor, read_camera_yaml, read_imu_yaml, read_vignette_yaml,
+};
+use crate::camera::Vignette;
 use crate::image::{Image, read_png_gray8, read_png_gray16};
 use crate::imu::ImuSample;
 use crate::time::TimeNs;
@@ -27,6 +30,9 @@ pub struct AslDataset {
     pub camera: CameraSensor,
     /// `imu0/sensor.yaml`.
     pub imu: ImuSensor,
+    /// `cam0/vignette.yaml`, if the dataset has a photometric calibration (the simulator writes
+    /// one; EuRoC has none).
+    pub vignette: Option<Vignette>,
 }
 
 /// A frame row of `cam0/data.csv`; the image is loaded on demand.
@@ -69,7 +75,21 @@ impl AslDataset {
         }
         let camera = read_camera_yaml(&mav0.join("cam0/sensor.yaml"))?;
         let imu = read_imu_yaml(&mav0.join("imu0/sensor.yaml"))?;
-        Ok(AslDataset { mav0, camera, imu })
+        let vp = mav0.join("cam0/vignette.yaml");
+        let vignette = if vp.exists() {
+            Some(read_vignette_yaml(
+                &vp,
+                (camera.model.width, camera.model.height),
+            )?)
+        } else {
+            None
+        };
+        Ok(AslDataset {
+            mav0,
+            camera,
+            imu,
+            vignette,
+        })
     }
 
     /// The `mav0` folder.

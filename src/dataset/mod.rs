@@ -16,7 +16,7 @@ pub use asl::{
 pub use groundtruth::{GroundTruth, GroundTruthState, read_groundtruth};
 pub use sensor_yaml::{
     CameraSensor, ImuSensor, SensorYamlError, isometry_from_matrix, read_camera_yaml,
-    read_imu_yaml, write_camera_yaml, write_imu_yaml,
+    read_imu_yaml, read_vignette_yaml, write_camera_yaml, write_imu_yaml, write_vignette_yaml,
 };
 pub use trajectory::{StampedPose, Trajectory, TrajectoryFormat};
 pub use writer::AslWriter;

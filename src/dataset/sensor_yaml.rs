@@ -1,7 +1,7 @@
 //! Reading and writing the OpenCV-style `sensor.yaml` files of the ASL/EuRoC layout (`%YAML:1.0`
 //! header, `T_BS` as `{cols, rows, data}`), for `cam0` and `imu0`.
 
-use crate::camera::{CameraModel, Distortion};
+use crate::camera::{CameraModel, Distortion, Vignette};
 use crate::imu::ImuNoise;
 use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion};
 use std::fmt::Write as _;
@@ -310,6 +310,51 @@ pub fn write_camera_yaml(path: &Path, cam: &CameraSensor, comment: &str) -> std:
     std::fs::write(path, out)
 }
 
+/// Reads `cam0/vignette.yaml` (vidslam's photometric calibration, see [`Vignette`]):
+/// `vignette_model: radial-polynomial`, `centre_px: [cu, cv]`, `radius_px: r`,
+/// `coefficients: [k1, k2, k3]`. `resolution` is the image size the model is checked over.
+pub fn read_vignette_yaml(
+    path: &Path,
+    resolution: (usize, usize),
+) -> Result<Vignette, SensorYamlError> {
+    let doc = Doc::load(path)?;
+    match doc.str("vignette_model")? {
+        Some(m) if m == "radial-polynomial" => {}
+        Some(m) => {
+            return Err(doc.err(
+                "vignette_model",
+                format!("'{m}' is not supported (radial-polynomial)"),
+            ));
+        }
+        None => return Err(doc.err("vignette_model", "missing")),
+    }
+    let c = doc.numbers("centre_px", 2)?;
+    let k = doc.numbers("coefficients", 3)?;
+    let v = Vignette {
+        centre_px: [c[0], c[1]],
+        radius_px: doc.number("radius_px")?,
+        coefficients: [k[0], k[1], k[2]],
+    };
+    v.validate(resolution.0, resolution.1)
+        .map_err(|m| doc.err("coefficients", m))?;
+    Ok(v)
+}
+
+/// Writes `cam0/vignette.yaml` (read by [`read_vignette_yaml`]).
+pub fn write_vignette_yaml(path: &Path, v: &Vignette, comment: &str) -> std::io::Result<()> {
+    let mut out = String::from("%YAML:1.0\n");
+    writeln!(out, "comment: {comment}").unwrap();
+    out.push_str(
+        "# V = 1 + k1 s^2 + k2 s^4 + k3 s^6, s = distance to centre_px / radius_px; image / V\n",
+    );
+    out.push_str("vignette_model: radial-polynomial\n");
+    writeln!(out, "centre_px: [{}, {}]", v.centre_px[0], v.centre_px[1]).unwrap();
+    writeln!(out, "radius_px: {}", v.radius_px).unwrap();
+    let [k1, k2, k3] = v.coefficients;
+    writeln!(out, "coefficients: [{k1}, {k2}, {k3}]").unwrap();
+    std::fs::write(path, out)
+}
+
 /// Writes `imu0/sensor.yaml` in the EuRoC layout.
 pub fn write_imu_yaml(path: &Path, imu: &ImuSensor, comment: &str) -> std::io::Result<()> {
     let n = &imu.noise;
@@ -377,6 +422,27 @@ mod tests {
         write_imu_yaml(&d.join("imu.yaml"), &imu, "test").unwrap();
         assert_eq!(read_imu_yaml(&d.join("imu.yaml")).unwrap(), imu);
         std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn vignette_yaml_round_trip_and_errors() {
+        let v = Vignette {
+            centre_px: [367.215, 248.375],
+            radius_px: 447.25,
+            coefficients: [-0.35, 0.01, -0.002],
+        };
+        let p = tmp("vignette").join("vignette.yaml");
+        write_vignette_yaml(&p, &v, "test").unwrap();
+        assert_eq!(read_vignette_yaml(&p, (752, 480)).unwrap(), v);
+        std::fs::write(&p, "vignette_model: radial-polynomial\ncentre_px: [1, 2]\nradius_px: 100\ncoefficients: [-0.99, 0, 0]\n").unwrap();
+        let e = read_vignette_yaml(&p, (752, 480)).unwrap_err().to_string();
+        assert!(
+            e.contains("vignette.yaml") && e.contains("coefficients") && e.contains("attenuation"),
+            "{e}"
+        );
+        std::fs::write(&p, "vignette_model: lut\n").unwrap();
+        let e = read_vignette_yaml(&p, (752, 480)).unwrap_err().to_string();
+        assert!(e.contains("vignette_model"), "{e}");
     }
 
     #[test]

@@ -25,7 +25,7 @@
 //! that do not fit the queue are dropped and snapshots are taken when they arrive.
 
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
 use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEvent};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
@@ -157,6 +157,8 @@ pub struct Rig {
     pub camera: CameraModel,
     pub t_body_cam: Isometry3<f64>,
     pub noise: ImuNoise,
+    /// Photometric calibration of the camera, if known.
+    pub vignette: Option<Vignette>,
 }
 
 /// Every setting of the odometry.
@@ -183,6 +185,10 @@ pub struct OdometryStats {
     pub jobs_dropped: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
+    /// Images are divided by the rig's vignetting.
+    pub vignette_corrected: bool,
+    /// Pixels clipped at 255 by the vignetting correction (bright texture in the corners).
+    pub vignette_saturated_px: u64,
 }
 
 /// The odometry of one camera + IMU rig.
@@ -224,6 +230,8 @@ pub struct Odometry {
     mapper_from_world: Isometry3<f64>,
     /// Camera pose of the newest keyframe as the mapper holds it.
     mapper_kf_pose: Option<(u32, Isometry3<f64>)>,
+    /// Per-pixel `1 / V` of the rig's vignetting (`[tracking] correct_vignetting`).
+    vignette_gain: Option<Vec<f32>>,
 }
 
 impl Odometry {
@@ -262,10 +270,17 @@ impl Odometry {
             init_started: None,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
-            stats: OdometryStats::default(),
+            stats: OdometryStats {
+                vignette_corrected: rig.vignette.is_some() && cfg.tracking.correct_vignetting,
+                ..Default::default()
+            },
             window: KeyframeWindow::new(cfg.window.clone(), rig.noise),
             mapper_from_world: Isometry3::identity(),
             mapper_kf_pose: None,
+            vignette_gain: rig
+                .vignette
+                .filter(|_| cfg.tracking.correct_vignetting)
+                .map(|v| v.correction_table(rig.camera.width, rig.camera.height)),
             cfg,
             rig,
         }
@@ -305,7 +320,12 @@ impl Odometry {
     }
 
     /// Processes the frame at `t` (all IMU samples up to at least `t` pushed first).
-    pub fn push_frame(&mut self, t: TimeNs, image: Image<u8>) -> OdometryFrame {
+    pub fn push_frame(&mut self, t: TimeNs, mut image: Image<u8>) -> OdometryFrame {
+        if let Some(gain) = &self.vignette_gain
+            && gain.len() == image.width() * image.height()
+        {
+            self.stats.vignette_saturated_px += correct_in_place(&mut image, gain) as u64;
+        }
         self.frame_number += 1;
         self.collect_snapshots();
         let image = Arc::new(image);

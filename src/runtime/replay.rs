@@ -144,6 +144,8 @@ pub struct ReplayOutput {
     pub keyframes: usize,
     /// Wall time of each keyframe-window solve, s.
     pub window_solve_s: Vec<f64>,
+    /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
+    pub vignette_saturated_px: Option<u64>,
 }
 
 /// Progress callback: `(frames done, frames total)`.
@@ -237,6 +239,7 @@ fn replay_full(
         camera: ds.camera.model,
         t_body_cam: ds.camera.t_body_cam,
         noise: ds.imu.noise,
+        vignette: ds.vignette,
     };
     let mut odo = Odometry::new(cfg, rig);
     if let Some(g) = &gt {
@@ -281,6 +284,9 @@ fn replay_full(
     out.keyframes = stats.keyframes;
     out.jobs_dropped = stats.jobs_dropped;
     out.window_solve_s = stats.window_solve_s;
+    out.vignette_saturated_px = stats
+        .vignette_corrected
+        .then_some(stats.vignette_saturated_px);
     out.mapping = mapping;
     Ok(out)
 }

@@ -57,6 +57,10 @@ pub struct ReplayReport {
     pub window_solves: usize,
     pub window_ms_p50: f64,
     pub window_ms_max: f64,
+    /// Images divided by the dataset's vignetting (`cam0/vignette.yaml`), and the pixels that
+    /// clipped at 255 doing so.
+    pub vignette_corrected: bool,
+    pub vignette_saturated_px: u64,
     /// Semidense points over all keyframes.
     pub semidense_points: usize,
     /// Sim3 scale error of the trajectory up to each time (from the first pose), %.
@@ -152,6 +156,8 @@ impl ReplayReport {
             window_solves: out.window_solve_s.len(),
             window_ms_p50: percentile(&window_ms, 50.0),
             window_ms_max: window_ms.iter().copied().fold(0.0, f64::max),
+            vignette_corrected: out.vignette_saturated_px.is_some(),
+            vignette_saturated_px: out.vignette_saturated_px.unwrap_or(0),
             semidense_points: out
                 .mapping
                 .keyframe_maps
@@ -251,6 +257,17 @@ impl ReplayReport {
                 ),
             );
         }
+        row(
+            "vignetting",
+            if self.vignette_corrected {
+                format!(
+                    "corrected (cam0/vignette.yaml), {} px clipped",
+                    self.vignette_saturated_px
+                )
+            } else {
+                "not corrected (no cam0/vignette.yaml)".into()
+            },
+        );
         if self.window_solves > 0 {
             row(
                 "keyframe window",

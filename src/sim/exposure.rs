@@ -20,6 +20,21 @@ pub const MAX_EXPOSURE_S: f64 = 0.010;
 pub const MAX_GAIN: f64 = 4.0;
 /// Vignetting: `V = 1 - VIGNETTING · (ρ / ρ_max)²`, ρ the distance to the principal point.
 pub const VIGNETTING: f64 = 0.35;
+
+/// The simulator's vignetting as the photometric calibration it writes (`cam0/vignette.yaml`):
+/// centred on the principal point, `ρ_max` the distance to the farthest image corner.
+pub fn vignette_model(cam: &crate::camera::CameraModel) -> crate::camera::Vignette {
+    let (w, h) = (cam.width as f64, cam.height as f64);
+    let rho_max = [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
+        .iter()
+        .map(|(x, y)| ((x - cam.cx).powi(2) + (y - cam.cy).powi(2)).sqrt())
+        .fold(1.0, f64::max);
+    crate::camera::Vignette {
+        centre_px: [cam.cx, cam.cy],
+        radius_px: rho_max,
+        coefficients: [-VIGNETTING, 0.0, 0.0],
+    }
+}
 /// Full-well capacity at unity gain, electrons per 255 DN (shot noise).
 pub const FULL_WELL_E: f64 = 8000.0;
 /// Read noise, DN at unity gain.

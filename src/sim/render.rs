@@ -21,7 +21,7 @@
 //! * Rows are rendered in parallel (rayon); noise uses one random stream per (seed, frame, row), so
 //!   the output does not depend on scheduling.
 
-use super::exposure::{Exposure, VIGNETTING, noise_std_dn};
+use super::exposure::{Exposure, noise_std_dn, vignette_model};
 use super::rng::SimRng;
 use super::scene::Scene;
 use super::texture::Texture;
@@ -181,15 +181,7 @@ impl CameraRays {
             |a: [f32; 2], b: [f32; 2]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
         let mut pitch = vec![0.0f32; w * h];
         let mut vignette = vec![1.0f32; w * h];
-        let rho_max = [
-            (0.0, 0.0),
-            (w as f64, 0.0),
-            (0.0, h as f64),
-            (w as f64, h as f64),
-        ]
-        .iter()
-        .map(|(x, y)| ((x - cam.cx).powi(2) + (y - cam.cy).powi(2)).sqrt())
-        .fold(1.0, f64::max);
+        let vig = vignette_model(cam);
         for y in 0..h {
             for x in 0..w {
                 let i = y * w + x;
@@ -206,8 +198,7 @@ impl CameraRays {
                     1.0 / cam.fy as f32
                 };
                 pitch[i] = 0.5 * (px * py).sqrt();
-                let rho = ((x as f64 - cam.cx).powi(2) + (y as f64 - cam.cy).powi(2)).sqrt();
-                vignette[i] = (1.0 - VIGNETTING * (rho / rho_max).powi(2)) as f32;
+                vignette[i] = vig.factor(x as f64, y as f64) as f32;
             }
         }
         let (tiles_x, tiles_y) = (w.div_ceil(TILE_PX), h.div_ceil(TILE_PX));

@@ -409,6 +409,14 @@ pub fn generate(cfg: &SimConfig) -> Result<SimReport, SimError> {
         if cfg.realism { "realistic" } else { "ideal" }
     );
     let mut writer = AslWriter::create(&cfg.out_dir, &camera_sensor, &imu_sensor, true, &comment)?;
+    if cfg.realism {
+        // The photometric calibration of the rendered vignetting (a real camera's would come
+        // from a calibration sequence).
+        let p = cfg.out_dir.join("mav0/cam0/vignette.yaml");
+        let v = super::exposure::vignette_model(&camera_sensor.model);
+        crate::dataset::write_vignette_yaml(&p, &v, &comment)
+            .map_err(|source| DatasetError::Io { path: p, source })?;
+    }
     let mut gt = GroundTruth::default();
     let biases: Vec<(Vector3<f64>, Vector3<f64>)> = match &real_rows {
         None => {

@@ -58,6 +58,9 @@ pub struct TrackerConfig {
     pub imu_noise_scale: f64,
     /// Use the images at all (`false` = IMU-only dead reckoning through the same solver).
     pub use_vision: bool,
+    /// Divide every image by the camera's vignetting (`cam0/vignette.yaml` of the dataset, see
+    /// `camera::Vignette`) before tracking and mapping. Without a calibration nothing is done.
+    pub correct_vignetting: bool,
 }
 
 impl Default for TrackerConfig {
@@ -84,6 +87,7 @@ impl Default for TrackerConfig {
             keyframe_max_rotation_rad: 0.3,
             imu_noise_scale: 3.0,
             use_vision: true,
+            correct_vignetting: true,
         }
     }
 }
