@@ -132,3 +132,50 @@ fn config_prints_every_table_and_checks_files() {
         assert!(o.status.success(), "{cmd} --help");
     }
 }
+
+/// `vidslam demo --seeds 1,2 --seconds 3`: one simulated dataset and replay per seed, and the
+/// summary with one row per seed in OUT/seeds.json.
+#[test]
+fn demo_over_several_seeds_writes_the_distribution() {
+    let out = std::env::temp_dir().join(format!("vidslam-demo-seeds-{}", std::process::id()));
+    let o = vidslam(&[
+        "demo",
+        "--seeds",
+        "1,2",
+        "--seconds",
+        "3",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("ATE over 2 seeds"), "{t}");
+    for s in [1, 2] {
+        assert!(out.join(format!("seed-{s}/replay/report.json")).exists());
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("seeds.json")).unwrap()).unwrap();
+    let rows = v["seeds"].as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    assert_eq!(
+        (rows[0]["seed"].as_u64(), rows[1]["seed"].as_u64()),
+        (Some(1), Some(2))
+    );
+    for r in rows {
+        assert!(
+            r["ate_rmse_m"]
+                .as_f64()
+                .is_some_and(|a| a.is_finite() && a > 0.0),
+            "{r}"
+        );
+    }
+    assert!(v["ate_rmse_m_median"].as_f64().is_some());
+    let o = vidslam(&["demo", "--seeds", "3-1", "--out", out.to_str().unwrap()]);
+    assert!(
+        !o.status.success() && text(&o).contains("ascending"),
+        "{}",
+        text(&o)
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}

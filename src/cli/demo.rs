@@ -19,6 +19,11 @@ pub struct DemoArgs {
     /// Simulator seed (scene, textures, noise).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Run several seeds (e.g. `1-8` or `1,3,5`) into OUT/seed-N and print the distribution of
+    /// the accuracy: the closed loop is chaotic (one run is one sample), so compare changes on
+    /// the median and the worst of several seeds. Writes OUT/seeds.json.
+    #[arg(long, value_name = "LIST", value_parser = parse_seed_list, conflicts_with = "seed")]
+    pub seeds: Option<SeedList>,
     /// Simulate only the first S seconds of the flight.
     #[arg(long, value_name = "S")]
     pub seconds: Option<f64>,
@@ -30,45 +35,166 @@ pub struct DemoArgs {
     pub quiet: bool,
 }
 
+/// Seeds of `--seeds`, in the order given.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SeedList(pub Vec<u64>);
+
+/// `1-4,7` → `[1, 2, 3, 4, 7]`.
+pub fn parse_seed_list(s: &str) -> Result<SeedList, String> {
+    let mut out = Vec::new();
+    for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let num = |t: &str| {
+            t.trim()
+                .parse::<u64>()
+                .map_err(|_| format!("'{t}' in '{s}' is not a seed (expected e.g. 1-8 or 1,3,5)"))
+        };
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b) = (num(a)?, num(b)?);
+                if b < a || b - a >= 1000 {
+                    return Err(format!(
+                        "seed range '{part}' must be ascending and < 1000 long"
+                    ));
+                }
+                out.extend(a..=b);
+            }
+            None => out.push(num(part)?),
+        }
+    }
+    if out.is_empty() {
+        return Err("empty seed list".into());
+    }
+    Ok(SeedList(out))
+}
+
+/// One seed's figures in OUT/seeds.json.
+#[derive(serde::Serialize)]
+struct SeedRow {
+    seed: u64,
+    ate_rmse_m: Option<f64>,
+    scale_error_pct: Option<f64>,
+    resets: u32,
+    tracking_ms_p99: f64,
+    non_finite_poses: usize,
+}
+
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let cfg = match &a.config {
         Some(p) => Config::read(p)?,
         None => Config::default(),
     };
-    let data = a.out.join("data");
+    let Some(SeedList(seeds)) = &a.seeds else {
+        return run_one(&a, &cfg, a.seed, &a.out).map(|_| ());
+    };
+    let mut rows = Vec::new();
+    for (k, &seed) in seeds.iter().enumerate() {
+        println!("== seed {seed} ({}/{})", k + 1, seeds.len());
+        let r = run_one(&a, &cfg, seed, &a.out.join(format!("seed-{seed}")))?;
+        rows.push(SeedRow {
+            seed,
+            ate_rmse_m: r.eval.as_ref().map(|e| e.ate_rmse_m),
+            scale_error_pct: r.eval.as_ref().map(|e| e.scale_error_pct),
+            resets: r.resets,
+            tracking_ms_p99: r.tracking_ms_p99,
+            non_finite_poses: r.non_finite_poses,
+        });
+    }
+    println!("\nseed   ATE RMSE (SE3)   scale error   resets   tracking p99");
+    for r in &rows {
+        let f = |v: Option<f64>, unit: &str| v.map_or("n/a".into(), |v| format!("{v:.3} {unit}"));
+        println!(
+            "{:<6} {:>14}   {:>11}   {:>6}   {:>9.2} ms",
+            r.seed,
+            f(r.ate_rmse_m, "m"),
+            f(r.scale_error_pct, "%"),
+            r.resets,
+            r.tracking_ms_p99
+        );
+    }
+    let mut ate: Vec<f64> = rows.iter().filter_map(|r| r.ate_rmse_m).collect();
+    ate.sort_by(f64::total_cmp);
+    let median = |v: &[f64]| match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    };
+    let (med, worst, best) = (
+        median(&ate),
+        ate.last().copied().unwrap_or(f64::NAN),
+        ate.first().copied().unwrap_or(f64::NAN),
+    );
+    println!(
+        "ATE over {} seeds: median {med:.3} m, best {best:.3} m, worst {worst:.3} m",
+        ate.len()
+    );
+    let json = serde_json::json!({
+        "seeds": rows,
+        "ate_rmse_m_median": med,
+        "ate_rmse_m_best": best,
+        "ate_rmse_m_worst": worst,
+    });
+    std::fs::create_dir_all(&a.out)?;
+    let path = a.out.join("seeds.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+fn run_one(
+    a: &DemoArgs,
+    cfg: &Config,
+    seed: u64,
+    out: &std::path::Path,
+) -> anyhow::Result<crate::runtime::ReplayReport> {
+    let data = out.join("data");
     println!("1/2 simulating the built-in flight into {}", data.display());
     let mut sim = SimConfig::new(
         data.clone(),
         TrajectorySource::Builtin("demo".into()),
         ImuSource::Synth,
     );
-    sim.seed = a.seed;
+    sim.seed = seed;
     sim.seconds = a.seconds;
     sim.force = true;
     sim.progress = !a.quiet;
     generate(&sim).context("simulating the demo flight")?;
     println!(
         "2/2 replaying it through the odometry into {}",
-        a.out.join("replay").display()
+        out.join("replay").display()
     );
     let args = ReplayArgs {
         dir: data,
         depth: DepthArg::Semidense,
         start: StartArg::Static,
         realtime: false,
-        out: a.out.join("replay"),
+        out: out.join("replay"),
         config: a.config.clone(),
         max_seconds: None,
         no_vision: false,
         quiet: a.quiet,
     };
     let started = std::time::Instant::now();
-    let report = run_with(&args, &cfg)?;
+    let report = run_with(&args, cfg)?;
     let wall_s = started.elapsed().as_secs_f64();
     println!(
         "replay took {wall_s:.1} s of wall time for {:.1} s of data ({:.1}x real time)",
         report.duration_s,
         report.duration_s / wall_s.max(1e-9)
     );
-    Ok(())
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_seed_list;
+
+    #[test]
+    fn seed_lists_parse_and_errors_say_what_is_wrong() {
+        assert_eq!(parse_seed_list("1-4,7").unwrap().0, vec![1, 2, 3, 4, 7]);
+        assert_eq!(parse_seed_list(" 3 ").unwrap().0, vec![3]);
+        assert!(parse_seed_list("4-1").unwrap_err().contains("ascending"));
+        assert!(parse_seed_list("1,x").unwrap_err().contains("'x'"));
+        assert!(parse_seed_list(",").unwrap_err().contains("empty"));
+    }
 }
