@@ -27,7 +27,7 @@
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
-use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEvent};
+use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::SemidenseConfig;
 use crate::smoother::{KeyframeWindow, RelativePose, WindowConfig};
@@ -213,6 +213,8 @@ pub struct Odometry {
     history: VecDeque<MapFrame>,
     /// The last static frames (held at the rest pose), newest last.
     static_frames: VecDeque<MapFrame>,
+    /// The rest estimate at each of those frames, newest last.
+    rest_estimates: VecDeque<StaticEstimate>,
     init_started: Option<TimeNs>,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
@@ -267,6 +269,7 @@ impl Odometry {
             tracking_kf_points: 0,
             history: VecDeque::new(),
             static_frames: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
+            rest_estimates: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
             init_started: None,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
@@ -349,8 +352,20 @@ impl Odometry {
                 if let Some(o) = self.detector.last_onset().copied() {
                     let margin_ns = (self.cfg.bootstrap.onset_margin_s * 1e9) as i64;
                     let t_rest = o.t_onset.add_ns(-margin_ns).max(o.estimate.t_start);
-                    let mut x = *self.tracker.state();
-                    x.nav.t = t_rest;
+                    // The rest state from the estimate as it stood at `t_rest`: a smooth take-off
+                    // accelerates for a few tenths of a second before the CUSUM alarms, and even
+                    // the estimate frozen at the back-dated onset has averaged that into the
+                    // accelerometer bias along gravity (+0.005 m/s² on the ideal demo take-off:
+                    // a 1.5 % short baseline for the first map, whose scale every later map
+                    // inherits).
+                    let e = self
+                        .rest_estimates
+                        .iter()
+                        .rev()
+                        .find(|e| e.t_end <= t_rest && e.t_start == o.estimate.t_start)
+                        .copied()
+                        .unwrap_or(o.estimate);
+                    let x = rest_state_from(&e, t_rest);
                     let cov = *self.tracker.covariance();
                     self.tracker.reset_state(x, cov);
                     if self.last_t.is_some_and(|lt| lt > t_rest) {
@@ -471,15 +486,11 @@ impl Odometry {
         let est = self.detector.estimate().copied();
         let x = match est {
             Some(e) => {
-                let mut x = rest_state(t, e.r_world_body, e.imu_bias().gyro_rad_s);
-                // At rest the accelerometer bias along gravity shows as the excess of the mean
-                // specific force over g; across gravity it is absorbed in the tilt. Taking both
-                // makes IMU dead reckoning from rest exact while the attitude stays near it.
-                let f = e.accel_mean_m_s2;
-                if f.norm() > 1e-6 {
-                    x.bias.accel_m_s2 = f.normalize() * (f.norm() - crate::geometry::GRAVITY_M_S2);
+                if self.rest_estimates.len() == STATIC_FRAMES_KEPT {
+                    self.rest_estimates.pop_front();
                 }
-                x
+                self.rest_estimates.push_back(e);
+                rest_state_from(&e, t)
             }
             None => *self.tracker.state(),
         };
@@ -780,6 +791,19 @@ fn rest_state(
             accel_m_s2: Vector3::zeros(),
         },
     }
+}
+
+/// The held rest state of a static estimate at time `t`. At rest the accelerometer bias along
+/// gravity shows as the excess of the mean specific force over g; across gravity it is absorbed
+/// in the tilt. Taking both makes IMU dead reckoning from rest exact while the attitude stays near
+/// it.
+fn rest_state_from(e: &StaticEstimate, t: TimeNs) -> FrameState {
+    let mut x = rest_state(t, e.r_world_body, e.imu_bias().gyro_rad_s);
+    let f = e.accel_mean_m_s2;
+    if f.norm() > 1e-6 {
+        x.bias.accel_m_s2 = f.normalize() * (f.norm() - crate::geometry::GRAVITY_M_S2);
+    }
+    x
 }
 
 /// Covariance of the held rest state: position and velocity known (the pad is the origin), tilt
