@@ -2,6 +2,7 @@
 
 use crate::dataset::{AslDataset, TrajectoryFormat};
 use crate::eval::plot_report;
+use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
 use crate::runtime::replay::StartMode;
 use crate::runtime::report::{frames_csv, write_ply};
 use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
@@ -127,8 +128,17 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     let traj_path = a.out.join("trajectory.tum");
     est.write(&traj_path, TrajectoryFormat::Tum)?;
     let mut report = ReplayReport::new(&out, opts.tracker.use_vision, depth_name(a.depth));
-    if let Some(gt) = AslDataset::open(&a.dir)?.ground_truth()? {
+    let ds = AslDataset::open(&a.dir)?;
+    if let Some(gt) = ds.ground_truth()? {
         report.evaluate_against(&gt.trajectory(), &est);
+    }
+    let depth_rows =
+        keyframe_depth_errors(&ds, &out.mapping.keyframe_maps, &out.mapping.keyframe_times)?;
+    if !depth_rows.is_empty() {
+        report.set_map_depth(&depth_rows);
+        let p = a.out.join("keyframes.csv");
+        std::fs::write(&p, keyframes_csv(&depth_rows))
+            .with_context(|| format!("writing {}", p.display()))?;
     }
     let csv_path = a.out.join("frames.csv");
     std::fs::write(&csv_path, frames_csv(&out))

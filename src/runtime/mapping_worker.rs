@@ -73,6 +73,8 @@ pub struct MapSnapshot {
 pub struct MappingOutput {
     /// Every keyframe's last map, in order.
     pub keyframe_maps: Vec<Arc<SemidenseMap>>,
+    /// The time of each keyframe of `keyframe_maps`.
+    pub keyframe_times: Vec<TimeNs>,
     /// Time per job, s.
     pub job_times_s: Vec<f64>,
 }
@@ -164,6 +166,7 @@ fn run(
                 let previous = cur.take().map(|c| {
                     let m = Arc::new(c.kf.map());
                     out.keyframe_maps.push(m.clone());
+                    out.keyframe_times.push(c.t);
                     m
                 });
                 to_f32(&frame.image, &mut scratch);
@@ -219,6 +222,7 @@ fn run(
     }
     if let Some(c) = cur {
         out.keyframe_maps.push(Arc::new(c.kf.map()));
+        out.keyframe_times.push(c.t);
     }
     out
 }

@@ -1,6 +1,7 @@
 //! `report.json` of a replay: frame counts, tracking time percentiles and the `vidslam eval`
 //! figures against ground truth, as one flat JSON object with stable keys.
 
+use super::map_depth::KeyframeDepthError;
 use super::odometry::Phase;
 use super::replay::ReplayOutput;
 use crate::dataset::{StampedPose, Trajectory};
@@ -63,6 +64,13 @@ pub struct ReplayReport {
     pub vignette_saturated_px: u64,
     /// Semidense points over all keyframes.
     pub semidense_points: usize,
+    /// Keyframe maps compared with the simulator's depth (`keyframes.csv`; 0 without `depth0`),
+    /// the median over keyframes of their median signed and absolute relative depth errors, and
+    /// the smallest share of points within 10 % in any keyframe, %.
+    pub map_depth_keyframes: usize,
+    pub map_depth_signed_median_pct: Option<f64>,
+    pub map_depth_abs_median_pct: Option<f64>,
+    pub map_depth_worst_within_10pct: Option<f64>,
     /// Sim3 scale error of the trajectory up to each time (from the first pose), %.
     pub scale_error_over_time: Vec<ScaleAt>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
@@ -164,6 +172,10 @@ impl ReplayReport {
                 .iter()
                 .map(|m| m.points.len())
                 .sum(),
+            map_depth_keyframes: 0,
+            map_depth_signed_median_pct: None,
+            map_depth_abs_median_pct: None,
+            map_depth_worst_within_10pct: None,
             scale_error_over_time: Vec::new(),
             eval: None,
         }
@@ -171,6 +183,23 @@ impl ReplayReport {
 
     /// Evaluates `est` against `gt` with SE3 alignment (metric: no scale fix), and the scale
     /// error of the trajectory up to every 10 s.
+    /// Fills the `map_depth_*` keys from the keyframes' depth errors.
+    pub fn set_map_depth(&mut self, rows: &[KeyframeDepthError]) {
+        let med = |mut v: Vec<f64>| {
+            v.retain(|x| x.is_finite());
+            v.sort_by(f64::total_cmp);
+            (!v.is_empty()).then(|| v[v.len() / 2])
+        };
+        self.map_depth_keyframes = rows.len();
+        self.map_depth_signed_median_pct = med(rows.iter().map(|r| r.signed_median_pct).collect());
+        self.map_depth_abs_median_pct = med(rows.iter().map(|r| r.abs_median_pct).collect());
+        self.map_depth_worst_within_10pct = rows
+            .iter()
+            .map(|r| r.within_10pct)
+            .filter(|v| v.is_finite())
+            .min_by(f64::total_cmp);
+    }
+
     pub fn evaluate_against(&mut self, gt: &Trajectory, est: &Trajectory) {
         self.eval = evaluate(gt, est, &EvalOptions::default()).ok();
         self.scale_error_over_time.clear();
@@ -254,6 +283,20 @@ impl ReplayReport {
                     self.mapping_ms_mean,
                     self.mapping_ms_p50,
                     self.mapping_ms_p99
+                ),
+            );
+        }
+        if let (Some(abs), Some(signed), Some(worst)) = (
+            self.map_depth_abs_median_pct,
+            self.map_depth_signed_median_pct,
+            self.map_depth_worst_within_10pct,
+        ) {
+            row(
+                "map depth vs truth",
+                format!(
+                    "{} keyframes: median |error| {abs:.2} % (signed {signed:+.2} %), worst \
+                     keyframe {worst:.0} % of points within 10 %",
+                    self.map_depth_keyframes
                 ),
             );
         }
