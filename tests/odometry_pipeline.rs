@@ -233,3 +233,32 @@ fn takeoff_dead_reckoning_starts_from_a_clean_rest_state() {
     assert!((est_m - climb_m).abs() < 0.002, "{est_m} vs {climb_m}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// With `[tracking] correct_vignetting` the images are divided by the dataset's calibration
+/// (`cam0/vignette.yaml`, written by the simulator) and the take-off still bootstraps metric
+/// tracking.
+#[test]
+fn vignetting_correction_runs_through_the_pipeline() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions::default();
+    opts.tracker.correct_vignetting = true;
+    let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    assert!(
+        out.vignette_saturated_px.is_some(),
+        "correction not applied"
+    );
+    let off = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    assert!(off.vignette_saturated_px.is_none());
+    let gt = AslDataset::open(&dir)
+        .unwrap()
+        .ground_truth()
+        .unwrap()
+        .unwrap()
+        .trajectory();
+    let e = evaluate(&gt, &trajectory(&out), &EvalOptions::default()).unwrap();
+    println!(
+        "take-off with vignetting corrected: ATE {:.3} m",
+        e.ate_rmse_m
+    );
+    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
+}

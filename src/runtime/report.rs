@@ -308,7 +308,7 @@ impl ReplayReport {
                     self.vignette_saturated_px
                 )
             } else {
-                "not corrected (no cam0/vignette.yaml)".into()
+                "not corrected ([tracking] correct_vignetting off, or no cam0/vignette.yaml)".into()
             },
         );
         if self.window_solves > 0 {
