@@ -10,12 +10,14 @@ use crate::tracking::pose_of;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
-/// The scale error of the trajectory from its start up to `t_s`.
+/// The scale error and ATE of the trajectory from its start up to `t_s` (each prefix aligned on
+/// its own): how long a run stays accurate, less chaotic than the whole run's figure.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct ScaleAt {
     /// Seconds since the first pose.
     pub t_s: f64,
     pub scale_error_pct: f64,
+    pub ate_rmse_m: f64,
 }
 
 /// The replay's own figures (the evaluation's are merged in by [`ReplayReport::to_json`]).
@@ -71,7 +73,7 @@ pub struct ReplayReport {
     pub map_depth_signed_median_pct: Option<f64>,
     pub map_depth_abs_median_pct: Option<f64>,
     pub map_depth_worst_within_10pct: Option<f64>,
-    /// Sim3 scale error of the trajectory up to each time (from the first pose), %.
+    /// Sim3 scale error and SE3 ATE of the trajectory up to every 10 s (from the first pose).
     pub scale_error_over_time: Vec<ScaleAt>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
@@ -214,6 +216,7 @@ impl ReplayReport {
                 self.scale_error_over_time.push(ScaleAt {
                     t_s: end.secs_since(t0),
                     scale_error_pct: e.scale_error_pct,
+                    ate_rmse_m: e.ate_rmse_m,
                 });
             }
             if end >= t1 {
