@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
-use vidslam::eval::{EvalOptions, evaluate};
+use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
 use vidslam::runtime::odometry::{Odometry, OdometryConfig, Phase, Rig};
 use vidslam::runtime::{ReplayOptions, replay, trajectory};
@@ -30,10 +30,23 @@ fn takeoff() -> PathBuf {
     .clone()
 }
 
+/// The take-off's trajectory in `out` against the dataset's ground truth (SE3 alignment).
+fn takeoff_eval(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutput) -> EvalReport {
+    let gt = AslDataset::open(dir)
+        .unwrap()
+        .ground_truth()
+        .unwrap()
+        .unwrap()
+        .trajectory();
+    evaluate(&gt, &trajectory(out), &EvalOptions::default()).unwrap()
+}
+
 #[test]
 fn rest_then_takeoff_bootstraps_metric_tracking() {
     let dir = takeoff();
     let out = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    // Vignetting correction is off by default, although the simulator ships the calibration.
+    assert!(out.vignette_saturated_px.is_none());
     let phases = &out.phases;
     // Valid poses from the first second: the rest is detected after 0.5 s of IMU.
     assert!(
@@ -59,13 +72,7 @@ fn rest_then_takeoff_bootstraps_metric_tracking() {
         p.translation.vector.iter().all(|v| v.is_finite())
     }));
     // Metric scale of the take-off: Sim3 scale of the estimate against ground truth.
-    let gt = AslDataset::open(&dir)
-        .unwrap()
-        .ground_truth()
-        .unwrap()
-        .unwrap()
-        .trajectory();
-    let e = evaluate(&gt, &trajectory(&out), &EvalOptions::default()).unwrap();
+    let e = takeoff_eval(&dir, &out);
     println!(
         "take-off: ATE {:.3} m over {:.2} m of path, scale error {:.1} %",
         e.ate_rmse_m, e.gt_path_m, e.scale_error_pct
@@ -247,15 +254,7 @@ fn vignetting_correction_runs_through_the_pipeline() {
         out.vignette_saturated_px.is_some(),
         "correction not applied"
     );
-    let off = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
-    assert!(off.vignette_saturated_px.is_none());
-    let gt = AslDataset::open(&dir)
-        .unwrap()
-        .ground_truth()
-        .unwrap()
-        .unwrap()
-        .trajectory();
-    let e = evaluate(&gt, &trajectory(&out), &EvalOptions::default()).unwrap();
+    let e = takeoff_eval(&dir, &out);
     println!(
         "take-off with vignetting corrected: ATE {:.3} m",
         e.ate_rmse_m

@@ -11,4 +11,4 @@ mod vignette;
 
 pub use model::{CameraModel, CameraModelError, Distortion};
 pub use undistort::UndistortMap;
-pub use vignette::{Vignette, correct_in_place};
+pub use vignette::{Vignette, correct_in_place, farthest_corner_px};

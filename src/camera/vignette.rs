@@ -23,6 +23,15 @@ pub struct Vignette {
     pub coefficients: [f64; 3],
 }
 
+/// Distance from `centre_px` to the farthest corner of a `width`×`height` image, pixels.
+pub fn farthest_corner_px(centre_px: [f64; 2], width: usize, height: usize) -> f64 {
+    let (w, h) = (width as f64, height as f64);
+    [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
+        .iter()
+        .map(|(x, y)| ((x - centre_px[0]).powi(2) + (y - centre_px[1]).powi(2)).sqrt())
+        .fold(0.0, f64::max)
+}
+
 /// Smallest attenuation accepted anywhere in the image (a gain above 1 / this is implausible).
 pub const MIN_FACTOR: f64 = 0.05;
 
@@ -47,14 +56,7 @@ impl Vignette {
             return Err(format!("radius_px = {} (must be > 0)", self.radius_px));
         }
         // V is a polynomial in s²: check it densely along the radius up to the farthest corner.
-        let corners = [(0.0, 0.0), (width as f64, 0.0), (0.0, height as f64)];
-        let far = corners
-            .iter()
-            .chain(&[(width as f64, height as f64)])
-            .map(|(x, y)| {
-                ((x - self.centre_px[0]).powi(2) + (y - self.centre_px[1]).powi(2)).sqrt()
-            })
-            .fold(0.0, f64::max);
+        let far = farthest_corner_px(self.centre_px, width, height);
         for k in 0..=256 {
             let rho = far * k as f64 / 256.0;
             let v = self.factor(self.centre_px[0] + rho, self.centre_px[1]);

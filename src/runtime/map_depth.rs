@@ -37,7 +37,8 @@ pub fn relative_errors(map: &SemidenseMap, depth: &Image<f32>) -> Vec<f64> {
         .collect()
 }
 
-fn median(v: &mut [f64]) -> f64 {
+/// The upper median (element `len / 2` in order); NaN if `v` is empty. Reorders `v`.
+pub fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -238,6 +238,10 @@ pub struct Odometry {
 
 impl Odometry {
     pub fn new(cfg: OdometryConfig, rig: Rig) -> Self {
+        let vignette_gain = rig
+            .vignette
+            .filter(|_| cfg.tracking.correct_vignetting)
+            .map(|v| v.correction_table(rig.camera.width, rig.camera.height));
         let tracker = Tracker::new(
             cfg.tracking.clone(),
             &rig.camera,
@@ -274,16 +278,13 @@ impl Odometry {
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
-                vignette_corrected: rig.vignette.is_some() && cfg.tracking.correct_vignetting,
+                vignette_corrected: vignette_gain.is_some(),
                 ..Default::default()
             },
             window: KeyframeWindow::new(cfg.window.clone(), rig.noise),
             mapper_from_world: Isometry3::identity(),
             mapper_kf_pose: None,
-            vignette_gain: rig
-                .vignette
-                .filter(|_| cfg.tracking.correct_vignetting)
-                .map(|v| v.correction_table(rig.camera.width, rig.camera.height)),
+            vignette_gain,
             cfg,
             rig,
         }

@@ -1,7 +1,7 @@
 //! `report.json` of a replay: frame counts, tracking time percentiles and the `vidslam eval`
 //! figures against ground truth, as one flat JSON object with stable keys.
 
-use super::map_depth::KeyframeDepthError;
+use super::map_depth::{KeyframeDepthError, median};
 use super::odometry::Phase;
 use super::replay::ReplayOutput;
 use crate::dataset::{StampedPose, Trajectory};
@@ -183,14 +183,11 @@ impl ReplayReport {
         }
     }
 
-    /// Evaluates `est` against `gt` with SE3 alignment (metric: no scale fix), and the scale
-    /// error of the trajectory up to every 10 s.
     /// Fills the `map_depth_*` keys from the keyframes' depth errors.
     pub fn set_map_depth(&mut self, rows: &[KeyframeDepthError]) {
-        let med = |mut v: Vec<f64>| {
-            v.retain(|x| x.is_finite());
-            v.sort_by(f64::total_cmp);
-            (!v.is_empty()).then(|| v[v.len() / 2])
+        let med = |v: Vec<f64>| {
+            let mut v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
+            (!v.is_empty()).then(|| median(&mut v))
         };
         self.map_depth_keyframes = rows.len();
         self.map_depth_signed_median_pct = med(rows.iter().map(|r| r.signed_median_pct).collect());
@@ -202,6 +199,8 @@ impl ReplayReport {
             .min_by(f64::total_cmp);
     }
 
+    /// Evaluates `est` against `gt` with SE3 alignment (metric: no scale fix), and the scale
+    /// error and ATE of the trajectory up to every 10 s.
     pub fn evaluate_against(&mut self, gt: &Trajectory, est: &Trajectory) {
         self.eval = evaluate(gt, est, &EvalOptions::default()).ok();
         self.scale_error_over_time.clear();

@@ -24,14 +24,10 @@ pub const VIGNETTING: f64 = 0.35;
 /// The simulator's vignetting as the photometric calibration it writes (`cam0/vignette.yaml`):
 /// centred on the principal point, `ρ_max` the distance to the farthest image corner.
 pub fn vignette_model(cam: &crate::camera::CameraModel) -> crate::camera::Vignette {
-    let (w, h) = (cam.width as f64, cam.height as f64);
-    let rho_max = [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
-        .iter()
-        .map(|(x, y)| ((x - cam.cx).powi(2) + (y - cam.cy).powi(2)).sqrt())
-        .fold(1.0, f64::max);
+    let rho_max = crate::camera::farthest_corner_px([cam.cx, cam.cy], cam.width, cam.height);
     crate::camera::Vignette {
         centre_px: [cam.cx, cam.cy],
-        radius_px: rho_max,
+        radius_px: rho_max.max(1.0),
         coefficients: [-VIGNETTING, 0.0, 0.0],
     }
 }
