@@ -59,7 +59,7 @@ fn bench(c: &mut Criterion) {
         Keyframe::new(
             0,
             f0.t,
-            tr.frame_pyramid().clone(),
+            tr.frame_pyramid(),
             &cam,
             tr.t_world_cam(),
             &pts,

@@ -261,3 +261,57 @@ fn vignetting_correction_runs_through_the_pipeline() {
     );
     assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
 }
+
+/// The noise-free built-in flight up to the second lap of its figure eight, which passes the
+/// places of the first lap again.
+#[test]
+fn second_lap_returns_to_stored_keyframes_and_corrects_the_drift() {
+    let dir = std::env::temp_dir().join(format!("vidslam-laps-{}", std::process::id()));
+    let mut cfg = SimConfig::new(
+        dir.clone(),
+        TrajectorySource::Builtin("demo".into()),
+        ImuSource::Synth,
+    );
+    cfg.seconds = Some(19.0);
+    cfg.realism = false;
+    cfg.force = true;
+    generate(&cfg).unwrap();
+    let gt = AslDataset::open(&dir)
+        .unwrap()
+        .ground_truth()
+        .unwrap()
+        .unwrap()
+        .trajectory();
+    let run = |reuse: bool| {
+        let mut opts = ReplayOptions::default();
+        opts.reuse.enabled = reuse;
+        let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+        let e = evaluate(&gt, &trajectory(&out), &EvalOptions::default()).unwrap();
+        (out, e)
+    };
+    let (with, e_with) = run(true);
+    let (without, e_without) = run(false);
+    println!(
+        "with reuse: ATE {:.2} cm, {} keyframes, {} returns ({} failed), {} stored; without: \
+         ATE {:.2} cm, {} keyframes",
+        e_with.ate_rmse_m * 100.0,
+        with.keyframes,
+        with.keyframe_reuses,
+        with.keyframe_reuse_failures,
+        with.keyframes_stored,
+        e_without.ate_rmse_m * 100.0,
+        without.keyframes
+    );
+    assert!(with.keyframe_reuses > 0);
+    assert_eq!(without.keyframe_reuses, 0);
+    assert_eq!(without.keyframes_stored, 0);
+    // Back on the first lap's maps, fewer new keyframes are needed…
+    assert!(with.keyframes < without.keyframes);
+    // …and the drift of the first lap is not carried on.
+    assert!(e_with.ate_rmse_m < e_without.ate_rmse_m);
+    assert!(
+        with.frames.iter().all(|r| r.state.is_finite()),
+        "a non-finite state"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -65,7 +65,7 @@ fn tracking_a_frame_does_not_allocate() {
     tr.set_keyframe(Keyframe::new(
         0,
         TimeNs(0),
-        pyr,
+        &pyr,
         &cam,
         Default::default(),
         &pts,

@@ -88,7 +88,7 @@ fn tracker_with_keyframe(fx: &Fixture, kf: usize) -> Tracker {
     let k = Keyframe::new(
         0,
         fx.frames[kf].t,
-        tr.frame_pyramid().clone(),
+        tr.frame_pyramid(),
         &cam,
         tr.t_world_cam(),
         &pts,

@@ -83,6 +83,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         static_detector: cfg.static_detector,
         bootstrap: cfg.bootstrap.clone(),
         window: cfg.window.clone(),
+        reuse: cfg.reuse.clone(),
         depth: match a.depth {
             DepthArg::Gt => DepthSource::GroundTruth,
             DepthArg::Semidense => DepthSource::Semidense,

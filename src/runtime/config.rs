@@ -1,6 +1,7 @@
 //! The daemon's TOML configuration (`config/vidslam.toml`). Unknown keys are errors; every error
 //! names the file, line and key.
 
+use super::keyframe_store::ReuseConfig;
 use super::odometry::BootstrapConfig;
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::mapping::semidense::SemidenseConfig;
@@ -23,6 +24,8 @@ pub struct Config {
     pub bootstrap: BootstrapConfig,
     /// `[window]`: the keyframe window (IMU between keyframes, relative poses from tracking).
     pub window: WindowConfig,
+    /// `[reuse]`: tracking against the closest stored keyframe.
+    pub reuse: ReuseConfig,
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -29,14 +29,17 @@ pub struct MapFrame {
 /// Work for the mapping thread. Every job produces exactly one [`MapSnapshot`] with its `seq`.
 #[derive(Clone, Debug)]
 pub enum MapJob {
-    /// Start keyframe `id` at `frame`: propagate the previous keyframe's map into it (if
-    /// `propagate`), then observe `history` (earlier frames, newest first).
+    /// Start keyframe `id` at `frame`: propagate the previous keyframe's map (or `seed`) into it
+    /// (if `propagate`), then observe `history` (earlier frames, newest first).
     NewKeyframe {
         seq: u64,
         id: u32,
         frame: MapFrame,
         history: Vec<MapFrame>,
         propagate: bool,
+        /// The map to propagate instead of the previous keyframe's (a stored keyframe the
+        /// tracker returned to), posed in the mapper's world.
+        seed: Option<Arc<SemidenseMap>>,
         /// Search range of inverse depth, 1/m (`None`: the configured one).
         inv_depth_range_m_inv: Option<(f64, f64)>,
     },
@@ -160,6 +163,7 @@ fn run(
                 frame,
                 history,
                 propagate,
+                seed,
                 inv_depth_range_m_inv,
                 ..
             } => {
@@ -174,8 +178,8 @@ fn run(
                 if let Some((lo, hi)) = inv_depth_range_m_inv {
                     kf.set_inv_depth_range(lo, hi);
                 }
-                if propagate && let Some(prev) = &previous {
-                    kf.propagate_from(prev);
+                if propagate && let Some(src) = seed.as_ref().or(previous.as_ref()) {
+                    kf.propagate_from(src);
                 }
                 let mut views = 0;
                 for h in &history {

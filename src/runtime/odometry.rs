@@ -10,10 +10,15 @@
 //!   the following frames, posed by IMU integration from the known rest state, are given to the
 //!   semidense mapper: the first map's depths come from an IMU-measured baseline, so they are
 //!   metric (the paper's bootstrap, section III-D end). Poses meanwhile are IMU-only.
-//! * [`Phase::Tracking`]: the first map has enough points; every frame is tracked against the
-//!   newest keyframe (joint visual-inertial, [`Tracker`]). When the tracker asks for a keyframe
-//!   the current frame starts one (seeded by propagating the previous map and by the last few
-//!   frames); otherwise the frame refines the current keyframe's depths.
+//! * [`Phase::Tracking`]: the first map has enough points; every frame is tracked against one
+//!   keyframe (joint visual-inertial, [`Tracker`]). When the tracker asks for a keyframe, a
+//!   stored keyframe that the camera sees well is taken first (the paper's *closest* keyframe,
+//!   [`KeyframeStore`]: back at a mapped place, the pose is measured against the older, less
+//!   drifted map instead of one more link of the chain; the current pose is made uncertain in
+//!   position and heading for that, and a stored keyframe that loses its inliers within
+//!   `probation_frames` is left again). Otherwise the current frame starts a new keyframe
+//!   (seeded by propagating the map of the keyframe tracked and by the last few frames). Frames
+//!   that start nothing refine the mapper's keyframe's depths.
 //! * [`Phase::Lost`]: several consecutive frames had too few photometric inliers (covered lens,
 //!   dark). Poses are IMU-only; as soon as the image has texture again a new keyframe is started
 //!   as in the bootstrap, and the reset is counted.
@@ -24,12 +29,13 @@
 //! replay gives the same poses every time. In real-time mode the tracking thread never waits: jobs
 //! that do not fit the queue are dropped and snapshots are taken when they arrive.
 
+use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
 use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
-use crate::mapping::semidense::SemidenseConfig;
+use crate::mapping::semidense::{SemidenseConfig, SemidenseMap};
 use crate::smoother::{KeyframeWindow, RelativePose, WindowConfig};
 use crate::time::TimeNs;
 use crate::tracking::{
@@ -169,6 +175,7 @@ pub struct OdometryConfig {
     pub static_detector: StaticDetectorConfig,
     pub bootstrap: BootstrapConfig,
     pub window: WindowConfig,
+    pub reuse: ReuseConfig,
     /// Real-time mode: never wait for the mapper (non-deterministic).
     pub realtime: bool,
 }
@@ -182,6 +189,12 @@ pub struct OdometryStats {
     pub tracking_since: Option<TimeNs>,
     pub resets: u32,
     pub keyframes: usize,
+    /// Times the tracker returned to a stored keyframe instead of starting a new one.
+    pub keyframe_reuses: usize,
+    /// Times a stored keyframe lost track right after the tracker returned to it.
+    pub keyframe_reuse_failures: usize,
+    /// Keyframes stored for returning to them.
+    pub keyframes_stored: usize,
     pub jobs_dropped: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
@@ -206,6 +219,20 @@ pub struct Odometry {
     awaited: VecDeque<(u64, u64)>,
     frame_number: u64,
     tracking_kf: Option<u32>,
+    /// The mapper's map of the tracking keyframe as installed.
+    tracking_map: Option<Arc<SemidenseMap>>,
+    /// A keyframe started in the mapper and not yet installed for tracking.
+    pending_kf: Option<u32>,
+    /// The tracking keyframe is a stored one (the mapper holds another, not tracked).
+    reusing: bool,
+    /// The mapper's keyframe left for a stored one (returned to if the stored one fails).
+    left_kf: Option<StoredKeyframe>,
+    /// Frames tracked since the last switch to a stored keyframe.
+    reuse_frames: u32,
+    /// Stored keyframes that failed since the last new keyframe was installed.
+    failed_reuse: Vec<u32>,
+    /// Keyframes no longer tracked, to return to.
+    store: KeyframeStore,
     newest_kf: Option<u32>,
     next_kf_id: u32,
     frames_since_refresh: u32,
@@ -267,6 +294,13 @@ impl Odometry {
             awaited: VecDeque::new(),
             frame_number: 0,
             tracking_kf: None,
+            tracking_map: None,
+            pending_kf: None,
+            reusing: false,
+            left_kf: None,
+            failed_reuse: Vec::new(),
+            reuse_frames: 0,
+            store: KeyframeStore::new(cfg.reuse.clone()),
             newest_kf: None,
             next_kf_id: 0,
             frames_since_refresh: 0,
@@ -420,15 +454,33 @@ impl Odometry {
                 } else {
                     self.consecutive_flagged = 0;
                 }
-                if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
+                if self.reusing {
+                    self.reuse_frames += 1;
+                    result.wants_keyframe = self.wants_keyframe_while_reusing(&result);
+                }
+                let r = &self.cfg.reuse;
+                if self.reusing
+                    && self.reuse_frames <= r.probation_frames
+                    && (result.flag == Some(FlagReason::FewInliers)
+                        || result.inlier_ratio < r.probation_min_inlier_ratio)
+                {
+                    // The stored keyframe does not fit after all (occlusion, a different
+                    // exposure, a bad map): back to the keyframe left.
+                    self.return_from_stored_keyframe();
+                } else if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
                     self.phase = Phase::Lost;
-                    self.tracker.clear_keyframe();
-                    self.tracking_kf = None;
+                    self.lose_keyframe();
                     self.history.clear();
                     self.stats.resets += 1;
                 } else if result.wants_keyframe
                     && result.flag.is_none()
-                    && self.newest_kf == self.tracking_kf
+                    && self.pending_kf.is_none()
+                    && self.switch_to_stored_keyframe()
+                {
+                    // Tracking continues against a stored keyframe: nothing for the mapper.
+                } else if result.wants_keyframe
+                    && result.flag.is_none()
+                    && self.pending_kf.is_none()
                 {
                     // (A keyframe already pending in the mapper is awaited, not replaced.)
                     let mut frame = frame.clone();
@@ -441,7 +493,10 @@ impl Odometry {
                     let history: Vec<MapFrame> = self.history.iter().cloned().collect();
                     let propagate = self.cfg.bootstrap.propagate_maps;
                     self.start_keyframe(frame, history, propagate);
-                } else if result.flag.is_none() {
+                } else if result.flag.is_none() && (!self.reusing || self.pending_kf.is_some()) {
+                    // (While a stored keyframe is tracked, the mapper's keyframe is the one left
+                    // behind until a new one is started: frames corrected against the stored
+                    // one would not fit its pose.)
                     self.observe(frame.clone());
                 }
             }
@@ -547,15 +602,17 @@ impl Odometry {
             return None;
         };
         let buffered_from = self.imu.front().map(|s| s.t);
-        if buffered_from.is_none_or(|t0| t0 > x_prev.nav.t) {
-            // The IMU since the last keyframe is no longer buffered: restart the window here.
+        if self.tracking_kf != Some(newest) || buffered_from.is_none_or(|t0| t0 > x_prev.nav.t) {
+            // Tracked against a stored keyframe (its correction of the drift would fight the
+            // window's older keyframes), or the IMU since the last keyframe is no longer
+            // buffered: restart the window here.
             self.reset_window();
             return None;
         }
         let mut pre = Preintegration::new(x_prev.nav.t, x_prev.bias);
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
         let visual = match self.tracker.keyframe() {
-            Some(kf) if Some(newest) == self.tracking_kf && kf.id == newest => {
+            Some(kf) if kf.id == newest => {
                 let t_w_bk = kf.t_world_cam * self.rig.t_body_cam.inverse();
                 Some(RelativePose {
                     t_i_j: t_w_bk.inverse() * pose_of(&result.state),
@@ -587,8 +644,125 @@ impl Odometry {
             self.tracker
                 .set_keyframe_pose(pose_of(xk) * self.rig.t_body_cam);
         }
+        // Stored keyframes still in the window move with it.
+        for id in self.window.ids() {
+            if let Some(x) = self.window.state(id) {
+                self.store.set_pose(id, pose_of(x) * self.rig.t_body_cam);
+            }
+        }
         result.state = x_new;
         Some(correction)
+    }
+
+    /// Tracking is lost: no keyframe until a new one is installed.
+    fn lose_keyframe(&mut self) {
+        self.tracker.clear_keyframe();
+        self.tracking_kf = None;
+        self.tracking_map = None;
+        self.reusing = false;
+    }
+
+    /// The tracker asks for a new keyframe: if a stored keyframe (not the one tracked, not one
+    /// of the window) covers the current view, track against it instead. Its pose is that of an
+    /// earlier, less drifted map, so the current pose is made uncertain enough for the next
+    /// frames to be pulled onto it. Returns whether it switched.
+    fn switch_to_stored_keyframe(&mut self) -> bool {
+        if !self.cfg.reuse.enabled || self.store.is_empty() {
+            return false;
+        }
+        let t_world_cam = self.tracker.t_world_cam();
+        let current = self.tracking_kf;
+        let (window, failed) = (&self.window, &self.failed_reuse);
+        let Some((id, _overlap)) =
+            self.store
+                .closest(&t_world_cam, self.cfg.tracking.border_px, |id| {
+                    Some(id) == current || window.state(id).is_some() || failed.contains(&id)
+                })
+        else {
+            return false;
+        };
+        let Some(stored) = self.store.get(id).cloned() else {
+            return false;
+        };
+        let previous = self.tracker.set_keyframe(stored.kf);
+        if !self.reusing
+            && let (Some(kf), Some(map)) = (previous, self.tracking_map.take())
+        {
+            let left = StoredKeyframe { kf, map };
+            if self.store.insert(left.kf.clone(), left.map.clone()) {
+                self.stats.keyframes_stored = self.store.len();
+            }
+            self.left_kf = Some(left);
+        }
+        self.tracking_map = Some(stored.map);
+        self.tracking_kf = Some(id);
+        self.frames_since_refresh = 0;
+        self.reuse_frames = 0;
+        // Frames since the last keyframe carry the drift the stored keyframe corrects.
+        self.history.clear();
+        if !self.reusing {
+            // Leaving the chain of new keyframes: the stored keyframes agree with each other,
+            // not with the drift of the chain.
+            // Position and heading drift; tilt does not (gravity observes it), so a stored
+            // keyframe may move the first two but not tilt the estimate.
+            let r = &self.cfg.reuse;
+            let x = *self.tracker.state();
+            let mut cov = *self.tracker.covariance();
+            // World vertical in the body frame: the axis of a heading change.
+            let a = x.nav.r_world_body.inverse() * Vector3::z();
+            let yaw = a * a.transpose() * r.switch_yaw_std_rad.powi(2);
+            for i in 0..3 {
+                for j in 0..3 {
+                    cov[(i, j)] += yaw[(i, j)];
+                }
+                cov[(i + 3, i + 3)] += r.switch_position_std_m.powi(2);
+            }
+            self.tracker.reset_state(x, cov);
+        }
+        self.reusing = true;
+        self.stats.keyframe_reuses += 1;
+        true
+    }
+
+    /// The keyframe policy for a stored keyframe: its overlap, rotation and inliers as for any
+    /// keyframe, but the baseline limit of `[reuse]` (a stored keyframe is not there to be
+    /// triangulated; a new one would only chain the drift again).
+    fn wants_keyframe_while_reusing(&self, result: &TrackResult) -> bool {
+        let Some(kf) = self.tracker.keyframe() else {
+            return result.wants_keyframe;
+        };
+        let t_kc = kf.t_world_cam.inverse() * self.tracker.t_world_cam();
+        let baseline = t_kc.translation.vector.norm() / kf.median_depth_m.max(1e-3);
+        let c = &self.cfg.tracking;
+        result.overlap < c.keyframe_min_overlap
+            || baseline > self.cfg.reuse.max_baseline_ratio
+            || t_kc.rotation.angle() > self.cfg.reuse.max_rotation_rad
+            || result.flag == Some(FlagReason::FewInliers)
+    }
+
+    /// A stored keyframe lost track: mark it failed and track the mapper's keyframe again (or
+    /// nothing, if that one was not stored).
+    fn return_from_stored_keyframe(&mut self) {
+        if let Some(id) = self.tracking_kf {
+            self.failed_reuse.push(id);
+        }
+        self.stats.keyframe_reuse_failures += 1;
+        match self.left_kf.take() {
+            Some(s) => {
+                self.tracking_kf = Some(s.kf.id);
+                self.tracker.set_keyframe(s.kf);
+                self.tracking_map = Some(s.map);
+                self.reusing = false;
+                self.history.clear();
+                self.consecutive_flagged = 0;
+            }
+            None => {
+                // (Not reached: a switch always leaves a keyframe behind.)
+                self.lose_keyframe();
+                self.phase = Phase::Lost;
+                self.stats.resets += 1;
+            }
+        }
     }
 
     fn imu_only_result(&self, t: TimeNs) -> TrackResult {
@@ -621,6 +795,18 @@ impl Odometry {
             self.mapper_from_world = m_prev * p_prev.inverse();
         }
         let d = self.mapper_from_world;
+        // Started while tracking a stored keyframe: its map seeds the new one (the mapper's own
+        // keyframe is the one left behind).
+        let seed = self
+            .reusing
+            .then(|| {
+                let id = self.tracking_kf?;
+                let s = self.store.get(id)?;
+                let mut m = (*s.map).clone();
+                m.t_world_cam = d * s.kf.t_world_cam;
+                Some(Arc::new(m))
+            })
+            .flatten();
         let frame = MapFrame {
             t_world_cam: d * frame.t_world_cam,
             ..frame
@@ -636,6 +822,7 @@ impl Odometry {
         self.mapper_kf_pose = Some((id, frame.t_world_cam));
         self.next_kf_id += 1;
         self.newest_kf = Some(id);
+        self.pending_kf = Some(id);
         self.stats.keyframes += 1;
         let b = &self.cfg.bootstrap;
         let range =
@@ -647,6 +834,7 @@ impl Odometry {
             frame,
             history,
             propagate,
+            seed,
             inv_depth_range_m_inv: range,
         });
     }
@@ -697,11 +885,12 @@ impl Odometry {
     }
 
     fn apply_snapshot(&mut self, s: &MapSnapshot) {
-        if self.newest_kf != Some(s.keyframe_id) {
-            return; // a keyframe that has been superseded already
+        let is_new = self.pending_kf == Some(s.keyframe_id);
+        let is_refresh = self.pending_kf.is_none() && self.tracking_kf == Some(s.keyframe_id);
+        if !(is_new || is_refresh) {
+            return; // a keyframe that has been superseded already, or left for a stored one
         }
         let n = s.map.points.len();
-        let is_new = self.tracking_kf != Some(s.keyframe_id);
         let install = match self.phase {
             Phase::Initializing => {
                 let mut depths: Vec<f32> = s
@@ -753,14 +942,27 @@ impl Odometry {
         let kf = Keyframe::new(
             s.keyframe_id,
             s.keyframe_t,
-            pyr,
+            &pyr,
             &self.rig.camera,
             self.mapper_from_world.inverse() * s.map.t_world_cam,
             &pts,
             &self.cfg.tracking,
         );
         // A refresh of the same keyframe keeps the brightness estimate.
-        self.tracker.set_keyframe(kf);
+        let previous = self.tracker.set_keyframe(kf);
+        if is_new {
+            if let (Some(old), Some(map)) = (previous, self.tracking_map.take())
+                && self.cfg.reuse.enabled
+                && self.store.insert(old, map)
+            {
+                self.stats.keyframes_stored = self.store.len();
+            }
+            self.pending_kf = None;
+            self.reusing = false;
+            self.left_kf = None;
+            self.failed_reuse.clear();
+        }
+        self.tracking_map = Some(s.map.clone());
         self.tracking_kf = Some(s.keyframe_id);
         self.tracking_kf_points = n;
         self.frames_since_refresh = 0;

@@ -6,6 +6,7 @@
 //! ground-truth depth maps (`mav0/depth0`, starting from the ground truth), which isolate tracking
 //! from mapping.
 
+use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
 use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, Phase, Rig};
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
@@ -47,6 +48,7 @@ pub struct ReplayOptions {
     pub static_detector: StaticDetectorConfig,
     pub bootstrap: BootstrapConfig,
     pub window: WindowConfig,
+    pub reuse: ReuseConfig,
     pub depth: DepthSource,
     pub start: StartMode,
     /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
@@ -102,6 +104,7 @@ impl Default for ReplayOptions {
             static_detector: StaticDetectorConfig::default(),
             bootstrap: BootstrapConfig::default(),
             window: WindowConfig::default(),
+            reuse: ReuseConfig::default(),
             depth: DepthSource::Semidense,
             start: StartMode::Static,
             realtime: false,
@@ -142,6 +145,11 @@ pub struct ReplayOutput {
     pub frames_in: usize,
     /// Keyframes created.
     pub keyframes: usize,
+    /// Returns to a stored keyframe instead of a new one, of which failed at once, and
+    /// keyframes stored for that (`[reuse]`).
+    pub keyframe_reuses: usize,
+    pub keyframe_reuse_failures: usize,
+    pub keyframes_stored: usize,
     /// Wall time of each keyframe-window solve, s.
     pub window_solve_s: Vec<f64>,
     /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
@@ -233,6 +241,7 @@ fn replay_full(
         static_detector: opts.static_detector,
         bootstrap: opts.bootstrap.clone(),
         window: opts.window.clone(),
+        reuse: opts.reuse.clone(),
         realtime: opts.realtime,
     };
     let rig = Rig {
@@ -282,6 +291,9 @@ fn replay_full(
     out.tracking_since = stats.tracking_since;
     out.resets = stats.resets;
     out.keyframes = stats.keyframes;
+    out.keyframe_reuses = stats.keyframe_reuses;
+    out.keyframe_reuse_failures = stats.keyframe_reuse_failures;
+    out.keyframes_stored = stats.keyframes_stored;
     out.jobs_dropped = stats.jobs_dropped;
     out.window_solve_s = stats.window_solve_s;
     out.vignette_saturated_px = stats
@@ -413,7 +425,7 @@ fn ground_truth_keyframe(
     Ok(Keyframe::new(
         id,
         t,
-        tracker.frame_pyramid().clone(),
+        tracker.frame_pyramid(),
         cam,
         tracker.t_world_cam(),
         &points,

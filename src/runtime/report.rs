@@ -29,6 +29,12 @@ pub struct ReplayReport {
     /// Flag counts by reason.
     pub flags: BTreeMap<String, usize>,
     pub keyframes: usize,
+    /// Returns to a stored keyframe (the closest one) instead of starting a new keyframe.
+    pub keyframe_reuses: usize,
+    /// Of these, returns that lost track at once (back to the keyframe left).
+    pub keyframe_reuse_failures: usize,
+    /// Keyframes stored for returning to them.
+    pub keyframes_stored: usize,
     pub tracking_ms_p50: f64,
     pub tracking_ms_p99: f64,
     pub tracking_ms_max: f64,
@@ -127,6 +133,9 @@ impl ReplayReport {
             frames_flagged: flagged,
             flags,
             keyframes: out.keyframes,
+            keyframe_reuses: out.keyframe_reuses,
+            keyframe_reuse_failures: out.keyframe_reuse_failures,
+            keyframes_stored: out.keyframes_stored,
             tracking_ms_p50: pct(50.0),
             tracking_ms_p99: pct(99.0),
             tracking_ms_max: ms.last().copied().unwrap_or(0.0),
@@ -254,6 +263,13 @@ impl ReplayReport {
             format!("{} {:?}", self.frames_flagged, self.flags),
         );
         row("keyframes", self.keyframes.to_string());
+        row(
+            "keyframe returns (failed) / stored",
+            format!(
+                "{} ({}) / {}",
+                self.keyframe_reuses, self.keyframe_reuse_failures, self.keyframes_stored
+            ),
+        );
         row(
             "tracking ms p50/p99/max",
             format!(

@@ -162,6 +162,11 @@ impl KeyframeWindow {
         self.nodes.iter().find(|n| n.id == id).map(|n| &n.state)
     }
 
+    /// Ids of the keyframes in the window, oldest first.
+    pub fn ids(&self) -> impl Iterator<Item = u32> + '_ {
+        self.nodes.iter().map(|n| n.id)
+    }
+
     /// The newest keyframe's id and state.
     pub fn newest(&self) -> Option<(u32, &FrameState)> {
         self.nodes.back().map(|n| (n.id, &n.state))

@@ -52,7 +52,6 @@ pub struct Keyframe {
     pub t: TimeNs,
     /// Pose of the keyframe camera (`T_w^i` inverted).
     pub t_world_cam: Isometry3<f64>,
-    pub pyramid: Pyramid,
     /// Camera model of each level.
     pub cameras: Vec<CameraModel>,
     /// Points per level (index 0 = full resolution).
@@ -67,7 +66,7 @@ impl Keyframe {
     pub fn new(
         id: u32,
         t: TimeNs,
-        pyramid: Pyramid,
+        pyramid: &Pyramid,
         camera: &CameraModel,
         t_world_cam: Isometry3<f64>,
         points: &[DepthPoint],
@@ -93,13 +92,12 @@ impl Keyframe {
         let mut levels = Vec::with_capacity(pyramid.num_levels());
         for (l, cam) in cameras.iter().enumerate() {
             let li = l.min(NUM_LEVELS - 1);
-            levels.push(build_level(&pyramid, l, cam, &p3, cfg, li));
+            levels.push(build_level(pyramid, l, cam, &p3, cfg, li));
         }
         Keyframe {
             id,
             t,
             t_world_cam,
-            pyramid,
             cameras,
             levels,
             median_depth_m,
@@ -109,6 +107,38 @@ impl Keyframe {
     /// Number of level-0 points.
     pub fn num_points(&self) -> usize {
         self.levels.first().map_or(0, LevelPoints::len)
+    }
+
+    /// Fraction of the keyframe's points (level `level`, or the coarsest there is) that a
+    /// camera at `t_world_cam` would see inside its image, `border_px` pixels of that level from
+    /// the edge, in front of it. Occlusion is ignored. This is the tracker's `overlap` predicted
+    /// from a pose, for choosing the closest keyframe.
+    pub fn predicted_overlap(
+        &self,
+        t_world_cam: &Isometry3<f64>,
+        level: usize,
+        border_px: f64,
+    ) -> f64 {
+        let l = level.min(self.levels.len().saturating_sub(1));
+        let (Some(pts), Some(cam)) = (self.levels.get(l), self.cameras.get(l)) else {
+            return 0.0;
+        };
+        if pts.is_empty() {
+            return 0.0;
+        }
+        let t_cur_kf = t_world_cam.inverse() * self.t_world_cam;
+        let seen = pts
+            .p_kf_m
+            .iter()
+            .filter(|p| {
+                let q = t_cur_kf * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                q.z > 0.0
+                    && cam
+                        .project(&q.coords)
+                        .is_some_and(|uv| cam.in_image(&uv, border_px))
+            })
+            .count();
+        seen as f64 / pts.len() as f64
     }
 }
 
@@ -340,14 +370,14 @@ mod tests {
         let depth = Image::from_fn(cam.width, cam.height, |_, _| 2.0f32);
         let pts = depth_points_from_map(&px, &depth, 0.05);
         assert_eq!(pts.len(), px.len());
-        let kf = Keyframe::new(0, TimeNs(0), pyr, &cam, Isometry3::identity(), &pts, &cfg);
+        let kf = Keyframe::new(0, TimeNs(0), &pyr, &cam, Isometry3::identity(), &pts, &cfg);
         for (l, lv) in kf.levels.iter().enumerate() {
             assert!(!lv.is_empty() && lv.len() <= cfg.max_points_per_level[l]);
             // Every point projects where its stored intensity was sampled.
             for (p, i) in lv.p_kf_m.iter().zip(&lv.intensity).take(50) {
                 let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
                 let uv = kf.cameras[l].project(&q).unwrap();
-                let s = bilinear(kf.pyramid.level(l), uv.x as f32, uv.y as f32).unwrap();
+                let s = bilinear(pyr.level(l), uv.x as f32, uv.y as f32).unwrap();
                 assert!((s - i).abs() < 0.05, "level {l}: {s} vs {i}");
             }
         }

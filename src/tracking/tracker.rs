@@ -209,14 +209,14 @@ impl Tracker {
         self.cov = cov;
     }
 
-    /// Makes `kf` the keyframe tracked against; brightness is then relative to it (a refreshed
-    /// map of the same keyframe keeps the brightness estimate).
-    pub fn set_keyframe(&mut self, kf: Keyframe) {
+    /// Makes `kf` the keyframe tracked against and returns the previous one; brightness is then
+    /// relative to it (a refreshed map of the same keyframe keeps the brightness estimate).
+    pub fn set_keyframe(&mut self, kf: Keyframe) -> Option<Keyframe> {
         if self.keyframe.as_ref().map(|k| k.id) != Some(kf.id) {
             self.log_gain = 0.0;
             self.offset_gray = 0.0;
         }
-        self.keyframe = Some(kf);
+        self.keyframe.replace(kf)
     }
 
     /// Moves the keyframe tracked against to `t_world_cam` (the keyframe window corrected it).
@@ -602,7 +602,7 @@ mod tests {
         let kf = Keyframe::new(
             0,
             TimeNs(0),
-            pyr.clone(),
+            &pyr,
             &cam,
             t_world_body * t_body_cam,
             &pts,

@@ -1,0 +1,292 @@
+//! Keyframes kept after they stop being tracked, so that the tracker can return to the *closest*
+//! keyframe (section III-C tracks "the closest keyframe", not the newest) when the camera comes
+//! back to a place it has mapped — the demo's figure eight and a room flight like V1_01 pass the
+//! same places every lap.
+//!
+//! Tracking against an old keyframe measures the pose against a map built when the drift was
+//! smaller, instead of chaining one more relative pose onto the newest keyframe: the drift
+//! accumulated since is corrected (the pose jumps back) instead of being inherited by the next
+//! map. What is stored is the tracking keyframe itself (points, reference intensities and
+//! inverse-compositional Jacobians per level, ≈ 0.3 MB, no image) and the mapper's final map of it
+//! (to seed the next keyframe's depths by propagation from the keyframe actually tracked).
+//!
+//! A keyframe is not stored when an older one already covers its view (baseline and rotation
+//! below the redundancy limits): the older one is the better anchor. The store is bounded by
+//! `max_keyframes`; once full, new keyframes are not stored (the oldest, least drifted anchors
+//! are kept).
+
+use crate::mapping::semidense::SemidenseMap;
+use crate::tracking::Keyframe;
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// `[reuse]`: returning to stored keyframes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReuseConfig {
+    /// Look for a stored keyframe before starting a new one.
+    pub enabled: bool,
+    /// Keyframes stored at most.
+    pub max_keyframes: usize,
+    /// A stored keyframe is a candidate if at least this fraction of its points (pyramid level
+    /// `overlap_level`) would project into the current image. Above the tracker's
+    /// `keyframe_min_overlap`, or it would ask for a new keyframe at once.
+    pub min_overlap: f64,
+    /// Pyramid level whose points predict the overlap (coarser = cheaper).
+    pub overlap_level: usize,
+    /// A candidate's distance from the current camera over its median depth is at most this.
+    pub max_baseline_ratio: f64,
+    /// A candidate's rotation from the current camera is at most this, rad.
+    pub max_rotation_rad: f64,
+    /// When the tracker switches to a stored keyframe, the current pose is made this uncertain
+    /// (standard deviation per axis, m) so that the drift since the keyframe was mapped can be
+    /// corrected instead of being rejected as inconsistent with the IMU.
+    pub switch_position_std_m: f64,
+    /// The same for the heading (rotation about the world vertical), rad. Tilt is not made
+    /// uncertain: gravity observes it, and a stored keyframe that disagrees has a bad map.
+    pub switch_yaw_std_rad: f64,
+    /// For this many frames after a switch…
+    pub probation_frames: u32,
+    /// …a stored keyframe with fewer inliers than this fraction is left again.
+    pub probation_min_inlier_ratio: f64,
+    /// A keyframe is not stored if an older stored one is closer than this (baseline over
+    /// median depth)…
+    pub redundant_baseline_ratio: f64,
+    /// …and rotated less than this from it, rad.
+    pub redundant_rotation_rad: f64,
+}
+
+impl Default for ReuseConfig {
+    fn default() -> Self {
+        ReuseConfig {
+            enabled: true,
+            max_keyframes: 400,
+            min_overlap: 0.85,
+            overlap_level: 2,
+            max_baseline_ratio: 0.2,
+            max_rotation_rad: 0.3,
+            switch_position_std_m: 0.1,
+            switch_yaw_std_rad: 0.03,
+            probation_frames: 3,
+            probation_min_inlier_ratio: 0.5,
+            redundant_baseline_ratio: 0.04,
+            redundant_rotation_rad: 0.1,
+        }
+    }
+}
+
+/// A keyframe no longer tracked, kept for returning to it.
+#[derive(Clone, Debug)]
+pub struct StoredKeyframe {
+    /// The tracking keyframe (its `t_world_cam` in the tracker's world).
+    pub kf: Keyframe,
+    /// The mapper's map of it (pose in the mapper's world at the time it was mapped).
+    pub map: Arc<SemidenseMap>,
+}
+
+/// Keyframes kept for tracking against the closest one.
+#[derive(Debug)]
+pub struct KeyframeStore {
+    cfg: ReuseConfig,
+    entries: Vec<StoredKeyframe>,
+}
+
+/// Baseline over the keyframe's median depth and rotation angle (rad) from a keyframe to a
+/// camera pose.
+fn distance(kf: &Keyframe, t_world_cam: &Isometry3<f64>) -> (f64, f64) {
+    let t_kc = kf.t_world_cam.inverse() * t_world_cam;
+    (
+        t_kc.translation.vector.norm() / kf.median_depth_m.max(1e-3),
+        t_kc.rotation.angle(),
+    )
+}
+
+impl KeyframeStore {
+    pub fn new(cfg: ReuseConfig) -> Self {
+        KeyframeStore {
+            cfg,
+            entries: Vec::new(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    pub fn get(&self, id: u32) -> Option<&StoredKeyframe> {
+        self.entries.iter().find(|e| e.kf.id == id)
+    }
+
+    /// Keeps `kf` (replacing a stored keyframe of the same id). Returns `false` if it was not
+    /// kept: the store is full, or an older stored keyframe already covers its view.
+    pub fn insert(&mut self, kf: Keyframe, map: Arc<SemidenseMap>) -> bool {
+        if let Some(e) = self.entries.iter_mut().find(|e| e.kf.id == kf.id) {
+            *e = StoredKeyframe { kf, map };
+            return true;
+        }
+        if kf.num_points() == 0 || self.entries.len() >= self.cfg.max_keyframes {
+            return false;
+        }
+        let redundant = self.entries.iter().any(|e| {
+            let (b, r) = distance(&e.kf, &kf.t_world_cam);
+            b < self.cfg.redundant_baseline_ratio && r < self.cfg.redundant_rotation_rad
+        });
+        if redundant {
+            return false;
+        }
+        self.entries.push(StoredKeyframe { kf, map });
+        true
+    }
+
+    /// Moves stored keyframe `id` (the keyframe window corrected it).
+    pub fn set_pose(&mut self, id: u32, t_world_cam: Isometry3<f64>) {
+        if let Some(e) = self.entries.iter_mut().find(|e| e.kf.id == id) {
+            e.kf.t_world_cam = t_world_cam;
+        }
+    }
+
+    /// The stored keyframe a camera at `t_world_cam` should track against: among those not
+    /// `excluded`, within the baseline and rotation limits, the one with the largest predicted
+    /// overlap, if that reaches `min_overlap`. Returns its id and the predicted overlap.
+    pub fn closest(
+        &self,
+        t_world_cam: &Isometry3<f64>,
+        border_px: f64,
+        excluded: impl Fn(u32) -> bool,
+    ) -> Option<(u32, f64)> {
+        let c = &self.cfg;
+        self.entries
+            .iter()
+            .filter(|e| !excluded(e.kf.id))
+            .filter_map(|e| {
+                let (b, r) = distance(&e.kf, t_world_cam);
+                let d = b / c.max_baseline_ratio.max(1e-9) + r / c.max_rotation_rad.max(1e-9);
+                (b <= c.max_baseline_ratio && r <= c.max_rotation_rad).then_some((e, d))
+            })
+            .filter_map(|(e, d)| {
+                let o =
+                    e.kf.predicted_overlap(t_world_cam, c.overlap_level, border_px);
+                (o >= c.min_overlap).then_some((e.kf.id, o, d))
+            })
+            .min_by(|a, b| a.2.total_cmp(&b.2).then(a.0.cmp(&b.0)))
+            .map(|(id, o, _)| (id, o))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::CameraModel;
+    use crate::image::Pyramid;
+    use crate::time::TimeNs;
+    use crate::tracking::{DepthPoint, NUM_LEVELS, TrackerConfig};
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    /// A keyframe at `t_world_cam` seeing a textured wall 2 m ahead.
+    fn keyframe(id: u32, t_world_cam: Isometry3<f64>) -> Keyframe {
+        let cam = CameraModel::euroc_cam0();
+        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        let img: Vec<f32> = (0..cam.width * cam.height)
+            .map(|i| {
+                let (x, y) = ((i % cam.width) as f32, (i / cam.width) as f32);
+                128.0 + 60.0 * (x * 0.21).sin() * (y * 0.17).cos()
+            })
+            .collect();
+        pyr.fill_from_f32(&crate::image::Image::from_vec(cam.width, cam.height, img));
+        let pts: Vec<DepthPoint> = (8..cam.height - 8)
+            .step_by(6)
+            .flat_map(|v| {
+                (8..cam.width - 8).step_by(6).map(move |u| DepthPoint {
+                    u_px: u as f32,
+                    v_px: v as f32,
+                    inv_depth_m_inv: 0.5,
+                })
+            })
+            .collect();
+        let cfg = TrackerConfig::default();
+        Keyframe::new(id, TimeNs(id as i64), &pyr, &cam, t_world_cam, &pts, &cfg)
+    }
+
+    fn map() -> Arc<SemidenseMap> {
+        Arc::new(SemidenseMap {
+            t_world_cam: Isometry3::identity(),
+            camera: CameraModel::euroc_cam0(),
+            points: Vec::new(),
+        })
+    }
+
+    fn pose(x_m: f64, yaw_rad: f64) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(x_m, 0.0, 0.0),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw_rad),
+        )
+    }
+
+    #[test]
+    fn predicted_overlap_falls_as_the_camera_turns_away() {
+        let kf = keyframe(0, Isometry3::identity());
+        let same = kf.predicted_overlap(&Isometry3::identity(), 2, 2.0);
+        assert!(same > 0.99, "{same}");
+        // Turning by a fifth of the horizontal field of view loses about a fifth of the points.
+        let turned = kf.predicted_overlap(&pose(0.0, 0.3), 2, 2.0);
+        assert!(turned > 0.4 && turned < 0.85, "{turned}");
+        // Facing away: none.
+        assert_eq!(kf.predicted_overlap(&pose(0.0, 3.0), 2, 2.0), 0.0);
+    }
+
+    #[test]
+    fn closest_is_the_nearest_within_limits_that_overlaps_and_honours_exclusions() {
+        let mut store = KeyframeStore::new(ReuseConfig::default());
+        assert!(store.insert(keyframe(1, pose(0.0, 0.0)), map()));
+        assert!(store.insert(keyframe(2, pose(0.3, 0.0)), map()));
+        assert!(store.insert(keyframe(3, pose(0.0, 0.5)), map()));
+        // 0.05 m from keyframe 2, 0.25 m (0.125 of the 2 m depth) from keyframe 1: 2 is closest;
+        // excluding it, keyframe 1 is still within the 0.2 limit and sees 90 % of the view.
+        let at = pose(0.25, 0.0);
+        assert_eq!(store.closest(&at, 2.0, |_| false).map(|c| c.0), Some(2));
+        let (id, overlap) = store.closest(&at, 2.0, |id| id == 2).unwrap();
+        assert_eq!(id, 1);
+        assert!(overlap > 0.85 && overlap < 1.0, "{overlap}");
+        // 0.6 m (0.3) from keyframe 1 is beyond the baseline limit.
+        assert_eq!(store.closest(&pose(-0.6, 0.0), 2.0, |_| false), None);
+        // Turned 0.25 rad from keyframes 1 and 3: within the rotation limit, but too little of
+        // either would be in view (keyframe 2, 0.3 m to the side the camera turned to, would).
+        assert_eq!(store.closest(&pose(0.0, 0.25), 2.0, |id| id == 2), None);
+        assert_eq!(
+            store.closest(&pose(0.0, 0.25), 2.0, |_| false).map(|c| c.0),
+            Some(2)
+        );
+        // Turned 0.45 rad: keyframe 3.
+        assert_eq!(
+            store.closest(&pose(0.0, 0.45), 2.0, |_| false).map(|c| c.0),
+            Some(3)
+        );
+        // Facing away from all of them: nothing.
+        assert_eq!(store.closest(&pose(0.0, 3.0), 2.0, |_| false), None);
+    }
+
+    #[test]
+    fn redundant_and_overflowing_keyframes_are_not_stored() {
+        let cfg = ReuseConfig {
+            max_keyframes: 2,
+            ..ReuseConfig::default()
+        };
+        let mut store = KeyframeStore::new(cfg);
+        assert!(store.insert(keyframe(1, pose(0.0, 0.0)), map()));
+        // 0.05 m at 2 m depth = 0.025 < 0.04 and no rotation: covered by keyframe 1.
+        assert!(!store.insert(keyframe(2, pose(0.05, 0.0)), map()));
+        assert!(store.insert(keyframe(3, pose(0.5, 0.0)), map()));
+        assert!(!store.insert(keyframe(4, pose(2.0, 0.0)), map()), "full");
+        assert_eq!(store.len(), 2);
+        // The same id replaces (a refreshed map), even when full.
+        assert!(store.insert(keyframe(3, pose(0.6, 0.0)), map()));
+        store.set_pose(3, pose(0.7, 0.0));
+        let p = store.get(3).unwrap().kf.t_world_cam.translation.vector.x;
+        assert!((p - 0.7).abs() < 1e-12);
+    }
+}
