@@ -262,17 +262,16 @@ fn vignetting_correction_runs_through_the_pipeline() {
     assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
 }
 
-/// The noise-free built-in flight up to the second lap of its figure eight, which passes the
-/// places of the first lap again.
+/// The whole noise-free built-in flight: three laps of a figure eight, which pass the places of
+/// the first lap again, then a 180° turn on the spot in hover, where nothing can be triangulated.
 #[test]
-fn second_lap_returns_to_stored_keyframes_and_corrects_the_drift() {
+fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     let dir = std::env::temp_dir().join(format!("vidslam-laps-{}", std::process::id()));
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::Builtin("demo".into()),
         ImuSource::Synth,
     );
-    cfg.seconds = Some(19.0);
     cfg.realism = false;
     cfg.force = true;
     generate(&cfg).unwrap();
@@ -282,24 +281,28 @@ fn second_lap_returns_to_stored_keyframes_and_corrects_the_drift() {
         .unwrap()
         .unwrap()
         .trajectory();
-    let run = |reuse: bool| {
-        let mut opts = ReplayOptions::default();
-        opts.reuse.enabled = reuse;
+    let run = |opts: ReplayOptions| {
         let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
         let e = evaluate(&gt, &trajectory(&out), &EvalOptions::default()).unwrap();
         (out, e)
     };
-    let (with, e_with) = run(true);
-    let (without, e_without) = run(false);
+    let (with, e_with) = run(ReplayOptions::default());
+    // The previous behaviour: always the newest keyframe, no depthless pixels in the turn.
+    let mut old = ReplayOptions::default();
+    old.reuse.enabled = false;
+    old.bootstrap.fill_depthless_below_points = 0;
+    let (without, e_without) = run(old);
     println!(
-        "with reuse: ATE {:.2} cm, {} keyframes, {} returns ({} failed), {} stored; without: \
-         ATE {:.2} cm, {} keyframes",
+        "with reuse and fill: ATE {:.2} cm, {} resets, {} keyframes, {} returns ({} failed), {} \
+         stored; without: ATE {:.2} cm, {} resets, {} keyframes",
         e_with.ate_rmse_m * 100.0,
+        with.resets,
         with.keyframes,
         with.keyframe_reuses,
         with.keyframe_reuse_failures,
         with.keyframes_stored,
         e_without.ate_rmse_m * 100.0,
+        without.resets,
         without.keyframes
     );
     assert!(with.keyframe_reuses > 0);
@@ -307,6 +310,9 @@ fn second_lap_returns_to_stored_keyframes_and_corrects_the_drift() {
     assert_eq!(without.keyframes_stored, 0);
     // Back on the first lap's maps, fewer new keyframes are needed…
     assert!(with.keyframes < without.keyframes);
+    // …the turn on the spot is tracked through (it is lost without the depthless pixels)…
+    assert_eq!(with.resets, 0);
+    assert!(without.resets > 0);
     // …and the drift of the first lap is not carried on.
     assert!(e_with.ate_rmse_m < e_without.ate_rmse_m);
     assert!(

@@ -18,7 +18,11 @@
 //!   position and heading for that, and a stored keyframe that loses its inliers within
 //!   `probation_frames` is left again). Otherwise the current frame starts a new keyframe
 //!   (seeded by propagating the map of the keyframe tracked and by the last few frames). Frames
-//!   that start nothing refine the mapper's keyframe's depths.
+//!   that start nothing refine the mapper's keyframe's depths. In a turn on the spot nothing can
+//!   be triangulated and each propagated map keeps only the part of the view that is leaving:
+//!   a keyframe barely displaced from the one tracked, with a thin map, is tracked with its
+//!   depthless gradient pixels too, at the last median depth (any depth serves a rotation), and
+//!   installed at once.
 //! * [`Phase::Lost`]: several consecutive frames had too few photometric inliers (covered lens,
 //!   dark). Poses are IMU-only; as soon as the image has texture again a new keyframe is started
 //!   as in the bootstrap, and the reset is counted.
@@ -96,6 +100,12 @@ pub struct BootstrapConfig {
     pub rest_accel_bias_std_m_s2: f64,
     /// Lower bound of the prior standard deviation of the tilt from the rest period, rad.
     pub rest_min_tilt_std_rad: f64,
+    /// A keyframe whose map has fewer points than this (a turn on the spot) is tracked with its
+    /// depthless gradient pixels too, at the map's median depth, and installed without waiting
+    /// for forward views (0 = never).
+    pub fill_depthless_below_points: usize,
+    /// …if it is closer than this to the keyframe tracked, over that one's median depth.
+    pub fill_max_baseline_ratio: f64,
 }
 
 impl Default for BootstrapConfig {
@@ -119,6 +129,8 @@ impl Default for BootstrapConfig {
             propagate_maps: true,
             rest_accel_bias_std_m_s2: 0.1,
             rest_min_tilt_std_rad: 1e-3,
+            fill_depthless_below_points: 1500,
+            fill_max_baseline_ratio: 0.03,
         }
     }
 }
@@ -221,6 +233,10 @@ pub struct Odometry {
     tracking_kf: Option<u32>,
     /// The mapper's map of the tracking keyframe as installed.
     tracking_map: Option<Arc<SemidenseMap>>,
+    /// The tracking keyframe includes depthless pixels at a guessed depth.
+    tracking_kf_filled: bool,
+    /// Median inverse depth of the last map with points, 1/m (the guess for depthless pixels).
+    last_median_inv_depth: Option<f32>,
     /// A keyframe started in the mapper and not yet installed for tracking.
     pending_kf: Option<u32>,
     /// The tracking keyframe is a stored one (the mapper holds another, not tracked).
@@ -295,6 +311,8 @@ impl Odometry {
             frame_number: 0,
             tracking_kf: None,
             tracking_map: None,
+            tracking_kf_filled: false,
+            last_median_inv_depth: None,
             pending_kf: None,
             reusing: false,
             left_kf: None,
@@ -891,6 +909,35 @@ impl Odometry {
             return; // a keyframe that has been superseded already, or left for a stored one
         }
         let n = s.map.points.len();
+        // A keyframe whose map covers little of its image (started in a turn on the spot, where
+        // nothing can be triangulated) is tracked with its other gradient pixels too, at the
+        // map's median depth: their photometric residuals constrain the rotation, which is what
+        // changes, whatever their depth. Such a keyframe is installed at once: waiting for
+        // forward views adds no parallax in a turn on the spot.
+        let b = &self.cfg.bootstrap;
+        if let Some(m) = median_inv_depth(&s.map) {
+            self.last_median_inv_depth = Some(m);
+        }
+        // Turned on the spot: the new keyframe is barely displaced from the one tracked.
+        let on_the_spot = self.tracker.keyframe().is_some_and(|k| {
+            let new_pose = self.mapper_from_world.inverse() * s.map.t_world_cam;
+            let d = (new_pose.translation.vector - k.t_world_cam.translation.vector).norm();
+            d < b.fill_max_baseline_ratio * k.median_depth_m
+        });
+        let fill = if self.phase == Phase::Tracking
+            && is_new
+            && on_the_spot
+            && n < b.fill_depthless_below_points
+            && let Some(median_inv) = self.last_median_inv_depth
+        {
+            let mut pyr = Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
+            pyr.fill_from_u8(&s.keyframe_image);
+            let f = depthless_points(&pyr, &s.map, median_inv, &self.cfg.tracking);
+            Some((pyr, f))
+        } else {
+            None
+        };
+        let n_fill = fill.as_ref().map_or(0, |f| f.1.len());
         let install = match self.phase {
             Phase::Initializing => {
                 let mut depths: Vec<f32> = s
@@ -915,19 +962,24 @@ impl Odometry {
             Phase::Tracking if is_new => {
                 // Wait for forward parallax unless the old keyframe is slipping away.
                 let urgent = self.last_inlier_ratio < self.cfg.bootstrap.urgent_inlier_ratio;
-                n >= self.cfg.bootstrap.min_keyframe_points
-                    && (urgent || s.forward_views >= self.cfg.bootstrap.min_keyframe_forward_views)
+                n + n_fill >= self.cfg.bootstrap.min_keyframe_points
+                    && (urgent
+                        || fill.is_some()
+                        || s.forward_views >= self.cfg.bootstrap.min_keyframe_forward_views)
             }
             Phase::Tracking => {
+                // (A keyframe tracked with guessed depths keeps them until its own map is full.)
                 self.frames_since_refresh >= self.cfg.bootstrap.refresh_every_frames
                     && n > self.tracking_kf_points + self.tracking_kf_points / 10
+                    && (!self.tracking_kf_filled
+                        || n >= self.cfg.bootstrap.fill_depthless_below_points)
             }
             _ => false,
         };
         if !install {
             return;
         }
-        let pts: Vec<DepthPoint> = s
+        let mut pts: Vec<DepthPoint> = s
             .map
             .points
             .iter()
@@ -937,8 +989,19 @@ impl Odometry {
                 inv_depth_m_inv: p.inv_depth_m_inv,
             })
             .collect();
-        let mut pyr = Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
-        pyr.fill_from_u8(&s.keyframe_image);
+        let filled = fill.is_some();
+        let pyr = match fill {
+            Some((pyr, f)) => {
+                pts.extend(f);
+                pyr
+            }
+            None => {
+                let mut pyr =
+                    Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
+                pyr.fill_from_u8(&s.keyframe_image);
+                pyr
+            }
+        };
         let kf = Keyframe::new(
             s.keyframe_id,
             s.keyframe_t,
@@ -951,8 +1014,10 @@ impl Odometry {
         // A refresh of the same keyframe keeps the brightness estimate.
         let previous = self.tracker.set_keyframe(kf);
         if is_new {
+            // (A keyframe tracked with guessed depths is no place to return to.)
             if let (Some(old), Some(map)) = (previous, self.tracking_map.take())
                 && self.cfg.reuse.enabled
+                && !self.tracking_kf_filled
                 && self.store.insert(old, map)
             {
                 self.stats.keyframes_stored = self.store.len();
@@ -963,6 +1028,7 @@ impl Odometry {
             self.failed_reuse.clear();
         }
         self.tracking_map = Some(s.map.clone());
+        self.tracking_kf_filled = filled;
         self.tracking_kf = Some(s.keyframe_id);
         self.tracking_kf_points = n;
         self.frames_since_refresh = 0;
@@ -974,6 +1040,48 @@ impl Odometry {
             }
         }
     }
+}
+
+/// The keyframe's level-0 gradient pixels (as the tracker selects them) in cells of its image
+/// that `map` has no point in, at the map's median inverse depth.
+fn depthless_points(
+    pyr: &Pyramid,
+    map: &SemidenseMap,
+    median_inv: f32,
+    cfg: &TrackerConfig,
+) -> Vec<DepthPoint> {
+    let cell = (2 * cfg.select_cell_px).max(1);
+    let (w, h) = (pyr.level(0).width(), pyr.level(0).height());
+    let (cw, ch) = (w.div_ceil(cell), h.div_ceil(cell));
+    let mut occupied = vec![false; cw * ch];
+    for p in &map.points {
+        let (cx, cy) = (
+            p.u_px.max(0.0) as usize / cell,
+            p.v_px.max(0.0) as usize / cell,
+        );
+        if cx < cw && cy < ch {
+            occupied[cy * cw + cx] = true;
+        }
+    }
+    select_gradient_pixels(pyr, cfg)
+        .into_iter()
+        .filter(|&(x, y)| !occupied[(y as usize / cell) * cw + x as usize / cell])
+        .map(|(x, y)| DepthPoint {
+            u_px: x as f32,
+            v_px: y as f32,
+            inv_depth_m_inv: median_inv,
+        })
+        .collect()
+}
+
+/// Median inverse depth of a map's points, 1/m.
+fn median_inv_depth(map: &SemidenseMap) -> Option<f32> {
+    let mut inv: Vec<f32> = map.points.iter().map(|p| p.inv_depth_m_inv).collect();
+    if inv.is_empty() {
+        return None;
+    }
+    let m = inv.len() / 2;
+    Some(*inv.select_nth_unstable_by(m, f32::total_cmp).1)
 }
 
 /// At rest at the origin with attitude `r_world_body` and gyro bias `bg`.
@@ -1024,4 +1132,58 @@ fn static_covariance(tilt_sigma_rad: f64, accel_bias_std_m_s2: f64) -> Matrix15 
         tilt, tilt, 0.01, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, ba, ba, ba,
     ];
     Matrix15::from_fn(|a, b| if a == b { s[a] * s[a] } else { 0.0 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::semidense::MapPoint;
+
+    #[test]
+    fn depthless_pixels_fill_only_cells_without_map_points() {
+        let cam = CameraModel::euroc_cam0();
+        let img = Image::from_fn(cam.width, cam.height, |x, y| {
+            128.0f32 + 60.0 * ((x as f32) * 0.3).sin() * ((y as f32) * 0.25).cos()
+        });
+        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        pyr.fill_from_f32(&img);
+        let cfg = TrackerConfig::default();
+        // Map points over the left half of the image.
+        let points = (0..cam.height as u32)
+            .step_by(4)
+            .flat_map(|v| {
+                (0..cam.width as u32 / 2).step_by(4).map(move |u| MapPoint {
+                    u_px: u as f32,
+                    v_px: v as f32,
+                    inv_depth_m_inv: 0.5,
+                    inv_depth_std_m_inv: 0.01,
+                    num_views: 3,
+                })
+            })
+            .collect();
+        let map = SemidenseMap {
+            t_world_cam: Isometry3::identity(),
+            camera: cam,
+            points,
+        };
+        assert_eq!(median_inv_depth(&map), Some(0.5));
+        let all = select_gradient_pixels(&pyr, &cfg).len();
+        let fill = depthless_points(&pyr, &map, 0.25, &cfg);
+        assert!(
+            fill.len() > all / 3 && fill.len() < all * 2 / 3,
+            "{} of {all}",
+            fill.len()
+        );
+        let cell = 2 * cfg.select_cell_px;
+        for p in &fill {
+            assert!(p.u_px as usize >= (cam.width / 2).div_ceil(cell) * cell - cell);
+            assert_eq!(p.inv_depth_m_inv, 0.25);
+        }
+        let empty = SemidenseMap {
+            points: Vec::new(),
+            ..map
+        };
+        assert_eq!(median_inv_depth(&empty), None);
+        assert_eq!(depthless_points(&pyr, &empty, 0.25, &cfg).len(), all);
+    }
 }
