@@ -707,7 +707,7 @@ impl Odometry {
             && let (Some(kf), Some(map)) = (previous, self.tracking_map.take())
         {
             let left = StoredKeyframe { kf, map };
-            if self.store.insert(left.kf.clone(), left.map.clone()) {
+            if !self.tracking_kf_filled && self.store.insert(left.kf.clone(), left.map.clone()) {
                 self.stats.keyframes_stored = self.store.len();
             }
             self.left_kf = Some(left);
@@ -915,9 +915,6 @@ impl Odometry {
         // changes, whatever their depth. Such a keyframe is installed at once: waiting for
         // forward views adds no parallax in a turn on the spot.
         let b = &self.cfg.bootstrap;
-        if let Some(m) = median_inv_depth(&s.map) {
-            self.last_median_inv_depth = Some(m);
-        }
         // Turned on the spot: the new keyframe is barely displaced from the one tracked.
         let on_the_spot = self.tracker.keyframe().is_some_and(|k| {
             let new_pose = self.mapper_from_world.inverse() * s.map.t_world_cam;
@@ -928,7 +925,7 @@ impl Odometry {
             && is_new
             && on_the_spot
             && n < b.fill_depthless_below_points
-            && let Some(median_inv) = self.last_median_inv_depth
+            && let Some(median_inv) = median_inv_depth(&s.map).or(self.last_median_inv_depth)
         {
             let mut pyr = Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
             pyr.fill_from_u8(&s.keyframe_image);
@@ -1011,6 +1008,7 @@ impl Odometry {
             &pts,
             &self.cfg.tracking,
         );
+        let kf_median_depth_m = kf.median_depth_m;
         // A refresh of the same keyframe keeps the brightness estimate.
         let previous = self.tracker.set_keyframe(kf);
         if is_new {
@@ -1026,6 +1024,9 @@ impl Odometry {
             self.reusing = false;
             self.left_kf = None;
             self.failed_reuse.clear();
+        }
+        if n > 0 && !filled {
+            self.last_median_inv_depth = Some((1.0 / kf_median_depth_m) as f32);
         }
         self.tracking_map = Some(s.map.clone());
         self.tracking_kf_filled = filled;
