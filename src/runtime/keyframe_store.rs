@@ -160,21 +160,23 @@ impl KeyframeStore {
         excluded: impl Fn(u32) -> bool,
     ) -> Option<(u32, f64)> {
         let c = &self.cfg;
-        self.entries
+        // Nearest first; the overlap (a projection of every point) only until one passes.
+        let mut near: Vec<(f64, u32, &StoredKeyframe)> = self
+            .entries
             .iter()
             .filter(|e| !excluded(e.kf.id))
             .filter_map(|e| {
                 let (b, r) = distance(&e.kf, t_world_cam);
                 let d = b / c.max_baseline_ratio.max(1e-9) + r / c.max_rotation_rad.max(1e-9);
-                (b <= c.max_baseline_ratio && r <= c.max_rotation_rad).then_some((e, d))
+                (b <= c.max_baseline_ratio && r <= c.max_rotation_rad).then_some((d, e.kf.id, e))
             })
-            .filter_map(|(e, d)| {
-                let o =
-                    e.kf.predicted_overlap(t_world_cam, c.overlap_level, border_px);
-                (o >= c.min_overlap).then_some((e.kf.id, o, d))
-            })
-            .min_by(|a, b| a.2.total_cmp(&b.2).then(a.0.cmp(&b.0)))
-            .map(|(id, o, _)| (id, o))
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        near.into_iter().find_map(|(_, id, e)| {
+            let o =
+                e.kf.predicted_overlap(t_world_cam, c.overlap_level, border_px);
+            (o >= c.min_overlap).then_some((id, o))
+        })
     }
 }
 
