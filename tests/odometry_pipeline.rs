@@ -30,8 +30,8 @@ fn takeoff() -> PathBuf {
     .clone()
 }
 
-/// The take-off's trajectory in `out` against the dataset's ground truth (SE3 alignment).
-fn takeoff_eval(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutput) -> EvalReport {
+/// The trajectory in `out` against the dataset's ground truth (SE3 alignment).
+fn eval_against_truth(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutput) -> EvalReport {
     let gt = AslDataset::open(dir)
         .unwrap()
         .ground_truth()
@@ -39,6 +39,22 @@ fn takeoff_eval(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutput) -> 
         .unwrap()
         .trajectory();
     evaluate(&gt, &trajectory(out), &EvalOptions::default()).unwrap()
+}
+
+/// A noise-free render of the built-in flight (all of it, or its first `seconds`) in a fresh
+/// directory named after `name`.
+fn simulate_ideal(name: &str, seconds: Option<f64>) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("vidslam-{name}-{}", std::process::id()));
+    let mut cfg = SimConfig::new(
+        dir.clone(),
+        TrajectorySource::Builtin("demo".into()),
+        ImuSource::Synth,
+    );
+    cfg.seconds = seconds;
+    cfg.realism = false;
+    cfg.force = true;
+    generate(&cfg).unwrap();
+    dir
 }
 
 #[test]
@@ -72,7 +88,7 @@ fn rest_then_takeoff_bootstraps_metric_tracking() {
         p.translation.vector.iter().all(|v| v.is_finite())
     }));
     // Metric scale of the take-off: Sim3 scale of the estimate against ground truth.
-    let e = takeoff_eval(&dir, &out);
+    let e = eval_against_truth(&dir, &out);
     println!(
         "take-off: ATE {:.3} m over {:.2} m of path, scale error {:.1} %",
         e.ate_rmse_m, e.gt_path_m, e.scale_error_pct
@@ -212,16 +228,7 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
 /// (an accelerometer bias of +0.005 m/s² along gravity, which made every first map 1.5 % short).
 #[test]
 fn takeoff_dead_reckoning_starts_from_a_clean_rest_state() {
-    let dir = std::env::temp_dir().join(format!("vidslam-odometry-ideal-{}", std::process::id()));
-    let mut cfg = SimConfig::new(
-        dir.clone(),
-        TrajectorySource::Builtin("demo".into()),
-        ImuSource::Synth,
-    );
-    cfg.seconds = Some(4.0);
-    cfg.realism = false;
-    cfg.force = true;
-    generate(&cfg).unwrap();
+    let dir = simulate_ideal("odometry-ideal", Some(4.0));
     let mut opts = ReplayOptions::default();
     opts.tracker.use_vision = false;
     let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
@@ -254,7 +261,7 @@ fn vignetting_correction_runs_through_the_pipeline() {
         out.vignette_saturated_px.is_some(),
         "correction not applied"
     );
-    let e = takeoff_eval(&dir, &out);
+    let e = eval_against_truth(&dir, &out);
     println!(
         "take-off with vignetting corrected: ATE {:.3} m",
         e.ate_rmse_m
@@ -266,24 +273,10 @@ fn vignetting_correction_runs_through_the_pipeline() {
 /// the first lap again, then a 180° turn on the spot in hover, where nothing can be triangulated.
 #[test]
 fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
-    let dir = std::env::temp_dir().join(format!("vidslam-laps-{}", std::process::id()));
-    let mut cfg = SimConfig::new(
-        dir.clone(),
-        TrajectorySource::Builtin("demo".into()),
-        ImuSource::Synth,
-    );
-    cfg.realism = false;
-    cfg.force = true;
-    generate(&cfg).unwrap();
-    let gt = AslDataset::open(&dir)
-        .unwrap()
-        .ground_truth()
-        .unwrap()
-        .unwrap()
-        .trajectory();
+    let dir = simulate_ideal("laps", None);
     let run = |opts: ReplayOptions| {
         let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
-        let e = evaluate(&gt, &trajectory(&out), &EvalOptions::default()).unwrap();
+        let e = eval_against_truth(&dir, &out);
         (out, e)
     };
     let (with, e_with) = run(ReplayOptions::default());

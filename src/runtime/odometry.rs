@@ -473,8 +473,15 @@ impl Odometry {
                     self.consecutive_flagged = 0;
                 }
                 if self.reusing {
+                    // A stored keyframe is not there to be triangulated (a new one would only
+                    // chain the drift again): the baseline and rotation limits of `[reuse]`.
                     self.reuse_frames += 1;
-                    result.wants_keyframe = self.wants_keyframe_while_reusing(&result);
+                    let r = &self.cfg.reuse;
+                    result.wants_keyframe = self.tracker.wants_keyframe(
+                        &result,
+                        r.max_baseline_ratio,
+                        r.max_rotation_rad,
+                    );
                 }
                 let r = &self.cfg.reuse;
                 if self.reusing
@@ -663,10 +670,8 @@ impl Odometry {
                 .set_keyframe_pose(pose_of(xk) * self.rig.t_body_cam);
         }
         // Stored keyframes still in the window move with it.
-        for id in self.window.ids() {
-            if let Some(x) = self.window.state(id) {
-                self.store.set_pose(id, pose_of(x) * self.rig.t_body_cam);
-            }
+        for (id, x) in self.window.states() {
+            self.store.set_pose(id, pose_of(x) * self.rig.t_body_cam);
         }
         result.state = x_new;
         Some(correction)
@@ -706,11 +711,8 @@ impl Odometry {
         if !self.reusing
             && let (Some(kf), Some(map)) = (previous, self.tracking_map.take())
         {
-            let left = StoredKeyframe { kf, map };
-            if !self.tracking_kf_filled && self.store.insert(left.kf.clone(), left.map.clone()) {
-                self.stats.keyframes_stored = self.store.len();
-            }
-            self.left_kf = Some(left);
+            self.store_keyframe(kf.clone(), map.clone());
+            self.left_kf = Some(StoredKeyframe { kf, map });
         }
         self.tracking_map = Some(stored.map);
         self.tracking_kf = Some(id);
@@ -720,9 +722,8 @@ impl Odometry {
         self.history.clear();
         if !self.reusing {
             // Leaving the chain of new keyframes: the stored keyframes agree with each other,
-            // not with the drift of the chain.
-            // Position and heading drift; tilt does not (gravity observes it), so a stored
-            // keyframe may move the first two but not tilt the estimate.
+            // not with the drift of the chain. Position and heading drift; tilt does not
+            // (gravity observes it), so a stored keyframe may move the first two only.
             let r = &self.cfg.reuse;
             let x = *self.tracker.state();
             let mut cov = *self.tracker.covariance();
@@ -742,24 +743,15 @@ impl Odometry {
         true
     }
 
-    /// The keyframe policy for a stored keyframe: its overlap, rotation and inliers as for any
-    /// keyframe, but the baseline limit of `[reuse]` (a stored keyframe is not there to be
-    /// triangulated; a new one would only chain the drift again).
-    fn wants_keyframe_while_reusing(&self, result: &TrackResult) -> bool {
-        let Some(kf) = self.tracker.keyframe() else {
-            return result.wants_keyframe;
-        };
-        let t_kc = kf.t_world_cam.inverse() * self.tracker.t_world_cam();
-        let baseline = t_kc.translation.vector.norm() / kf.median_depth_m.max(1e-3);
-        let c = &self.cfg.tracking;
-        result.overlap < c.keyframe_min_overlap
-            || baseline > self.cfg.reuse.max_baseline_ratio
-            || t_kc.rotation.angle() > self.cfg.reuse.max_rotation_rad
-            || result.flag == Some(FlagReason::FewInliers)
+    /// Keeps the tracking keyframe `kf` (with its map), which is being left, for returning to it
+    /// — unless it was tracked with guessed depths: that is no place to return to.
+    fn store_keyframe(&mut self, kf: Keyframe, map: Arc<SemidenseMap>) {
+        if self.cfg.reuse.enabled && !self.tracking_kf_filled && self.store.insert(kf, map) {
+            self.stats.keyframes_stored = self.store.len();
+        }
     }
 
-    /// A stored keyframe lost track: mark it failed and track the mapper's keyframe again (or
-    /// nothing, if that one was not stored).
+    /// A stored keyframe lost track: mark it failed and track the keyframe left for it again.
     fn return_from_stored_keyframe(&mut self) {
         if let Some(id) = self.tracking_kf {
             self.failed_reuse.push(id);
@@ -921,14 +913,18 @@ impl Odometry {
             let d = (new_pose.translation.vector - k.t_world_cam.translation.vector).norm();
             d < b.fill_max_baseline_ratio * k.median_depth_m
         });
+        let pyramid = || {
+            let mut pyr = Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
+            pyr.fill_from_u8(&s.keyframe_image);
+            pyr
+        };
         let fill = if self.phase == Phase::Tracking
             && is_new
             && on_the_spot
             && n < b.fill_depthless_below_points
             && let Some(median_inv) = median_inv_depth(&s.map).or(self.last_median_inv_depth)
         {
-            let mut pyr = Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
-            pyr.fill_from_u8(&s.keyframe_image);
+            let pyr = pyramid();
             let f = depthless_points(&pyr, &s.map, median_inv, &self.cfg.tracking);
             Some((pyr, f))
         } else {
@@ -992,12 +988,7 @@ impl Odometry {
                 pts.extend(f);
                 pyr
             }
-            None => {
-                let mut pyr =
-                    Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
-                pyr.fill_from_u8(&s.keyframe_image);
-                pyr
-            }
+            None => pyramid(),
         };
         let kf = Keyframe::new(
             s.keyframe_id,
@@ -1012,13 +1003,8 @@ impl Odometry {
         // A refresh of the same keyframe keeps the brightness estimate.
         let previous = self.tracker.set_keyframe(kf);
         if is_new {
-            // (A keyframe tracked with guessed depths is no place to return to.)
-            if let (Some(old), Some(map)) = (previous, self.tracking_map.take())
-                && self.cfg.reuse.enabled
-                && !self.tracking_kf_filled
-                && self.store.insert(old, map)
-            {
-                self.stats.keyframes_stored = self.store.len();
+            if let (Some(old), Some(map)) = (previous, self.tracking_map.take()) {
+                self.store_keyframe(old, map);
             }
             self.pending_kf = None;
             self.reusing = false;

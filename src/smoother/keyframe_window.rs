@@ -162,9 +162,9 @@ impl KeyframeWindow {
         self.nodes.iter().find(|n| n.id == id).map(|n| &n.state)
     }
 
-    /// Ids of the keyframes in the window, oldest first.
-    pub fn ids(&self) -> impl Iterator<Item = u32> + '_ {
-        self.nodes.iter().map(|n| n.id)
+    /// Ids and states of the keyframes in the window, oldest first.
+    pub fn states(&self) -> impl Iterator<Item = (u32, &FrameState)> + '_ {
+        self.nodes.iter().map(|n| (n.id, &n.state))
     }
 
     /// The newest keyframe's id and state.

@@ -284,16 +284,34 @@ impl Tracker {
         self.cov = res.covariance;
         self.log_gain = res.log_gain;
         self.offset_gray = res.offset_gray;
-        if let Some(kf) = &self.keyframe {
-            let t_kc = kf.t_world_cam.inverse() * pose_of(&res.state) * self.t_body_cam;
-            let baseline = t_kc.translation.vector.norm() / kf.median_depth_m.max(1e-3);
-            res.wants_keyframe = res.overlap < self.cfg.keyframe_min_overlap
-                || baseline > self.cfg.keyframe_max_baseline_ratio
-                || t_kc.rotation.angle() > self.cfg.keyframe_max_rotation_rad
-                || res.flag == Some(FlagReason::FewInliers);
-        }
+        res.wants_keyframe = self.wants_keyframe(
+            &res,
+            self.cfg.keyframe_max_baseline_ratio,
+            self.cfg.keyframe_max_rotation_rad,
+        );
         res.time_s = started.elapsed().as_secs_f64();
         res
+    }
+
+    /// The keyframe policy for the frame of `res` (the current state): a new keyframe when too
+    /// little of the keyframe is in view, the frame is farther from it than
+    /// `max_baseline_ratio` × its median depth or turned by more than `max_rotation_rad`, or
+    /// too few points are inliers. `false` without a keyframe.
+    pub fn wants_keyframe(
+        &self,
+        res: &TrackResult,
+        max_baseline_ratio: f64,
+        max_rotation_rad: f64,
+    ) -> bool {
+        let Some(kf) = &self.keyframe else {
+            return false;
+        };
+        let t_kc = kf.t_world_cam.inverse() * pose_of(&self.state) * self.t_body_cam;
+        let baseline = t_kc.translation.vector.norm() / kf.median_depth_m.max(1e-3);
+        res.overlap < self.cfg.keyframe_min_overlap
+            || baseline > max_baseline_ratio
+            || t_kc.rotation.angle() > max_rotation_rad
+            || res.flag == Some(FlagReason::FewInliers)
     }
 
     /// Coarse-to-fine Gauss-Newton with step control; `None` if the solution is rejected
