@@ -314,3 +314,30 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `[bootstrap] refine_takeoff_passes`: the take-off's views are tracked again against the first
+/// map and their scale aligned with the IMU before it is tracked. On the demo's clean take-off
+/// (dead reckoning from an exact rest) every pass must find the scale already right, and the
+/// re-triangulated map must still bootstrap metric tracking.
+#[test]
+fn takeoff_refinement_passes_keep_a_correct_first_map_scale() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions::default();
+    opts.bootstrap.refine_takeoff_passes = 2;
+    // Apply every pass, however small its correction, so that the passes are exercised.
+    opts.bootstrap.takeoff_min_significance_sigmas = 0.0;
+    let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let scales = &out.takeoff_scale_corrections;
+    println!("take-off scale corrections {scales:?}");
+    assert_eq!(scales.len(), 2, "{scales:?}");
+    assert!(scales.iter().all(|s| (s - 1.0).abs() < 0.08), "{scales:?}");
+    assert!(out.tracking_since.is_some());
+    assert!(out.frames.iter().all(|r| r.state.is_finite()));
+    let e = eval_against_truth(&dir, &out);
+    println!(
+        "refined take-off: ATE {:.3} m, scale error {:.1} %",
+        e.ate_rmse_m, e.scale_error_pct
+    );
+    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
+    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+}

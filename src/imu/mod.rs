@@ -56,6 +56,7 @@ pub mod integration;
 
 pub use integration::{ImuBias, NavState, Preintegration, propagate};
 pub mod residual;
+pub mod scale_alignment;
 pub mod static_init;
 
 pub use residual::{

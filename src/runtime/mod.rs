@@ -7,6 +7,7 @@ pub mod mapping_worker;
 pub mod odometry;
 pub mod replay;
 pub mod report;
+pub mod takeoff;
 
 pub use config::Config;
 pub use replay::{DepthSource, ReplayOptions, ReplayOutput, replay};

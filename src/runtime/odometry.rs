@@ -35,8 +35,10 @@
 
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
+use super::takeoff::{TakeoffRecord, TakeoffRig, refine_takeoff};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
+use crate::imu::scale_alignment::{AlignmentPrior, ScaleAlignment};
 use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::{SemidenseConfig, SemidenseMap};
@@ -106,6 +108,22 @@ pub struct BootstrapConfig {
     pub fill_depthless_below_points: usize,
     /// …if it is closer than this to the keyframe tracked, over that one's median depth.
     pub fill_max_baseline_ratio: f64,
+    /// After a static start, the first map's views are re-posed by tracking them against it and
+    /// their scale aligned with the IMU this many times before it is tracked
+    /// ([`super::takeoff`]; 0 = the paper's bootstrap by dead reckoning alone).
+    pub refine_takeoff_passes: u32,
+    /// Prior standard deviation of the velocity at the rest state, m/s.
+    pub takeoff_velocity_std_m_s: f64,
+    /// Prior standard deviation of the dead reckoning's world acceleration error, m/s².
+    pub takeoff_accel_std_m_s2: f64,
+    /// Noise of a tracked take-off position against the integrated one, m.
+    pub takeoff_position_std_m: f64,
+    /// Scale corrections farther from 1 than this are not applied (a failed alignment).
+    pub takeoff_max_scale_correction: f64,
+    /// The take-off is re-tracked with the IMU white noise multiplied by this.
+    pub takeoff_imu_noise_factor: f64,
+    /// Scale corrections within this many standard deviations of 1 are not applied.
+    pub takeoff_min_significance_sigmas: f64,
 }
 
 impl Default for BootstrapConfig {
@@ -131,6 +149,13 @@ impl Default for BootstrapConfig {
             rest_min_tilt_std_rad: 1e-3,
             fill_depthless_below_points: 1500,
             fill_max_baseline_ratio: 0.03,
+            refine_takeoff_passes: 0,
+            takeoff_velocity_std_m_s: 0.01,
+            takeoff_accel_std_m_s2: 0.05,
+            takeoff_position_std_m: 0.005,
+            takeoff_max_scale_correction: 0.3,
+            takeoff_imu_noise_factor: 1.0,
+            takeoff_min_significance_sigmas: 2.0,
         }
     }
 }
@@ -207,6 +232,10 @@ pub struct OdometryStats {
     pub keyframe_reuse_failures: usize,
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
+    /// Scale alignments of the take-off's first map applied (one per refinement pass).
+    pub takeoff_alignments: Vec<ScaleAlignment>,
+    /// Tracking-thread time spent re-tracking the take-off, s.
+    pub takeoff_refine_s: f64,
     pub jobs_dropped: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
@@ -259,6 +288,8 @@ pub struct Odometry {
     /// The rest estimate at each of those frames, newest last.
     rest_estimates: VecDeque<StaticEstimate>,
     init_started: Option<TimeNs>,
+    /// The take-off from rest while its first map is built.
+    takeoff: Option<TakeoffRecord>,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
@@ -327,6 +358,7 @@ impl Odometry {
             static_frames: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
             rest_estimates: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
             init_started: None,
+            takeoff: None,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
@@ -431,10 +463,20 @@ impl Odometry {
                     }
                 }
                 if let Some(kf) = self.static_frames.pop_back() {
-                    let mut x = *self.tracker.state();
+                    let rest = *self.tracker.state();
+                    let mut x = rest;
                     x.nav.t = kf.t;
                     let cov = *self.tracker.covariance();
                     self.window.reset(self.next_kf_id, x, &cov);
+                    self.takeoff =
+                        (self.cfg.bootstrap.refine_takeoff_passes > 0).then(|| TakeoffRecord {
+                            rest,
+                            rest_cov: cov,
+                            keyframe: kf.clone(),
+                            keyframe_id: self.next_kf_id,
+                            frames: Vec::new(),
+                            passes: 0,
+                        });
                     self.start_keyframe(kf, Vec::new(), false);
                 }
                 self.static_frames.clear();
@@ -457,11 +499,16 @@ impl Odometry {
                 let started = self.init_started.unwrap_or(t);
                 if self.newest_kf.is_none() || t.secs_since(started) > self.cfg.bootstrap.max_init_s
                 {
-                    // Not enough structure yet: restart the first map from here.
+                    // Not enough structure yet: restart the first map from here (no longer a
+                    // take-off from rest).
+                    self.takeoff = None;
                     self.reset_window();
                     self.start_keyframe(frame.clone(), Vec::new(), false);
                     self.init_started = Some(t);
                 } else {
+                    if let Some(tk) = self.takeoff.as_mut() {
+                        tk.frames.push(frame.clone());
+                    }
                     self.observe(frame.clone());
                 }
             }
@@ -602,6 +649,56 @@ impl Odometry {
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
         self.last_t = Some(t);
         self.tracker.track(t, image, &pre)
+    }
+
+    /// One refinement pass of the take-off whose first map `kf` (mapper keyframe `id`) is ready:
+    /// re-poses and rescales its views and starts the first map again from them. Returns whether
+    /// it did (the map is then not installed yet).
+    fn refine_takeoff_with(&mut self, kf: &Keyframe, id: u32) -> bool {
+        let b = &self.cfg.bootstrap;
+        let Some(tk) = self.takeoff.as_ref() else {
+            return false;
+        };
+        if tk.keyframe_id != id || tk.passes >= b.refine_takeoff_passes {
+            return false;
+        }
+        let rig = TakeoffRig {
+            tracking: &self.cfg.tracking,
+            camera: &self.rig.camera,
+            t_body_cam: self.rig.t_body_cam,
+            noise: self.rig.noise,
+            prior: AlignmentPrior {
+                velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                accel_std_m_s2: b.takeoff_accel_std_m_s2,
+                position_std_m: b.takeoff_position_std_m,
+            },
+            max_scale_correction: b.takeoff_max_scale_correction,
+            imu_noise_factor: b.takeoff_imu_noise_factor,
+            min_significance_sigmas: b.takeoff_min_significance_sigmas,
+        };
+        let started = std::time::Instant::now();
+        let refined = refine_takeoff(tk, kf.clone(), self.imu.make_contiguous(), &rig);
+        self.stats.takeoff_refine_s += started.elapsed().as_secs_f64();
+        let Some(r) = refined else {
+            return false;
+        };
+        let Some(mut tk) = self.takeoff.take() else {
+            return false;
+        };
+        // The tracker continues from the refined state on the IMU until the new map is ready.
+        let cov = *self.tracker.covariance();
+        self.tracker.reset_state(r.last, cov);
+        let mut x0 = r.rest;
+        x0.nav.t = tk.keyframe.t;
+        self.window.reset(self.next_kf_id, x0, &tk.rest_cov);
+        tk.rest = r.rest;
+        tk.keyframe_id = self.next_kf_id;
+        tk.passes += 1;
+        tk.frames = r.views.clone();
+        self.start_keyframe(tk.keyframe.clone(), r.views, false);
+        self.stats.takeoff_alignments.push(r.alignment);
+        self.takeoff = Some(tk);
+        true
     }
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
@@ -999,6 +1096,10 @@ impl Odometry {
             &pts,
             &self.cfg.tracking,
         );
+        if self.phase == Phase::Initializing && self.refine_takeoff_with(&kf, s.keyframe_id) {
+            return; // the first map is being triangulated again from the refined take-off
+        }
+        self.takeoff = None;
         let kf_median_depth_m = kf.median_depth_m;
         // A refresh of the same keyframe keeps the brightness estimate.
         let previous = self.tracker.set_keyframe(kf);

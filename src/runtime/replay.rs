@@ -150,6 +150,9 @@ pub struct ReplayOutput {
     pub keyframe_reuses: usize,
     pub keyframe_reuse_failures: usize,
     pub keyframes_stored: usize,
+    /// Scale factor applied to the first map by each take-off refinement pass
+    /// (`[bootstrap] refine_takeoff_passes`).
+    pub takeoff_scale_corrections: Vec<f64>,
     /// Wall time of each keyframe-window solve, s.
     pub window_solve_s: Vec<f64>,
     /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
@@ -294,6 +297,7 @@ fn replay_full(
     out.keyframe_reuses = stats.keyframe_reuses;
     out.keyframe_reuse_failures = stats.keyframe_reuse_failures;
     out.keyframes_stored = stats.keyframes_stored;
+    out.takeoff_scale_corrections = stats.takeoff_alignments.iter().map(|a| a.scale).collect();
     out.jobs_dropped = stats.jobs_dropped;
     out.window_solve_s = stats.window_solve_s;
     out.vignette_saturated_px = stats

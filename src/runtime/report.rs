@@ -35,6 +35,8 @@ pub struct ReplayReport {
     pub keyframe_reuse_failures: usize,
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
+    /// Scale factor applied to the first map by each take-off refinement pass.
+    pub takeoff_scale_corrections: Vec<f64>,
     pub tracking_ms_p50: f64,
     pub tracking_ms_p99: f64,
     pub tracking_ms_max: f64,
@@ -136,6 +138,7 @@ impl ReplayReport {
             keyframe_reuses: out.keyframe_reuses,
             keyframe_reuse_failures: out.keyframe_reuse_failures,
             keyframes_stored: out.keyframes_stored,
+            takeoff_scale_corrections: out.takeoff_scale_corrections.clone(),
             tracking_ms_p50: pct(50.0),
             tracking_ms_p99: pct(99.0),
             tracking_ms_max: ms.last().copied().unwrap_or(0.0),
@@ -270,6 +273,14 @@ impl ReplayReport {
                 self.keyframe_reuses, self.keyframe_reuse_failures, self.keyframes_stored
             ),
         );
+        if !self.takeoff_scale_corrections.is_empty() {
+            let v: Vec<String> = self
+                .takeoff_scale_corrections
+                .iter()
+                .map(|s| format!("{s:.3}"))
+                .collect();
+            row("take-off scale corrections", v.join(" "));
+        }
         row(
             "tracking ms p50/p99/max",
             format!(
