@@ -234,8 +234,6 @@ pub struct OdometryStats {
     pub keyframes_stored: usize,
     /// Scale alignments of the take-off's first map applied (one per refinement pass).
     pub takeoff_alignments: Vec<ScaleAlignment>,
-    /// Tracking-thread time spent re-tracking the take-off, s.
-    pub takeoff_refine_s: f64,
     pub jobs_dropped: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
@@ -676,10 +674,7 @@ impl Odometry {
             imu_noise_factor: b.takeoff_imu_noise_factor,
             min_significance_sigmas: b.takeoff_min_significance_sigmas,
         };
-        let started = std::time::Instant::now();
-        let refined = refine_takeoff(tk, kf.clone(), self.imu.make_contiguous(), &rig);
-        self.stats.takeoff_refine_s += started.elapsed().as_secs_f64();
-        let Some(r) = refined else {
+        let Some(r) = refine_takeoff(tk, kf.clone(), self.imu.make_contiguous(), &rig) else {
             return false;
         };
         let Some(mut tk) = self.takeoff.take() else {

@@ -26,7 +26,6 @@ use super::mapping_worker::MapFrame;
 use crate::camera::CameraModel;
 use crate::imu::scale_alignment::{AlignmentPrior, AlignmentSample, ScaleAlignment, align_scale};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
-use crate::time::TimeNs;
 use crate::tracking::{Keyframe, Tracker, TrackerConfig};
 use nalgebra::Isometry3;
 
@@ -91,11 +90,16 @@ pub fn refine_takeoff(
     if imu.first().is_none_or(|s| s.t > rest.nav.t) {
         return None; // the rest state's IMU is no longer buffered
     }
-    let dead_reckoned = |t: TimeNs| -> NavState {
-        let mut pre = Preintegration::new(rest.nav.t, rest.bias);
-        pre.integrate(imu, t, None);
-        pre.predict(&rest.nav, &rest.bias)
-    };
+    // Each frame dead-reckoned from rest with zero initial velocity.
+    let dead_reckoned: Vec<NavState> = rec
+        .frames
+        .iter()
+        .map(|f| {
+            let mut pre = Preintegration::new(rest.nav.t, rest.bias);
+            pre.integrate(imu, f.t, None);
+            pre.predict(&rest.nav, &rest.bias)
+        })
+        .collect();
     let mut tracking = rig.tracking.clone();
     tracking.imu_noise_scale *= rig.imu_noise_factor;
     let mut tracker = Tracker::new(
@@ -121,12 +125,13 @@ pub fn refine_takeoff(
         .frames
         .iter()
         .zip(&tracked)
-        .filter_map(|(f, x)| {
+        .zip(&dead_reckoned)
+        .filter_map(|((f, x), dr)| {
             let x = x.as_ref()?;
             Some(AlignmentSample {
                 dt_s: f.t.secs_since(rest.nav.t),
                 tracked_m: x.nav.p_world_m - p0,
-                dead_reckoned_m: dead_reckoned(f.t).p_world_m - p0,
+                dead_reckoned_m: dr.p_world_m - p0,
             })
         })
         .collect();
@@ -135,9 +140,9 @@ pub fn refine_takeoff(
     if change > rig.max_scale_correction || change < rig.min_significance_sigmas * a.scale_std {
         return None;
     }
-    let corrected_nav = |t: TimeNs, x: Option<&FrameState>| -> NavState {
+    let corrected_nav = |dr: &NavState, x: Option<&FrameState>| -> NavState {
+        let t = dr.t;
         let dt = t.secs_since(rest.nav.t);
-        let dr = dead_reckoned(t);
         let v = dr.v_world_m_s + a.v0_m_s + a.accel_m_s2 * dt;
         match x {
             Some(x) => NavState {
@@ -154,12 +159,16 @@ pub fn refine_takeoff(
             },
         }
     };
+    let corrected: Vec<NavState> = dead_reckoned
+        .iter()
+        .zip(&tracked)
+        .map(|(dr, x)| corrected_nav(dr, x.as_ref()))
+        .collect();
     let views = rec
         .frames
         .iter()
-        .zip(&tracked)
-        .map(|(f, x)| {
-            let nav = corrected_nav(f.t, x.as_ref());
+        .zip(&corrected)
+        .map(|(f, nav)| {
             let t_world_body = Isometry3::from_parts(nav.p_world_m.into(), nav.r_world_body);
             MapFrame {
                 t_world_cam: t_world_body * rig.t_body_cam,
@@ -172,9 +181,8 @@ pub fn refine_takeoff(
     // The acceleration error, taken at the rest attitude, is an accelerometer bias correction.
     rest_new.bias.accel_m_s2 =
         rest.bias.accel_m_s2 - rest.nav.r_world_body.inverse() * a.accel_m_s2;
-    let (last_frame, last_x) = (rec.frames.last()?, tracked.last()?);
     let last = FrameState {
-        nav: corrected_nav(last_frame.t, last_x.as_ref()),
+        nav: *corrected.last()?,
         bias: rest_new.bias,
     };
     Some(RefinedTakeoff {
