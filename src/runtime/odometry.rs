@@ -35,13 +35,14 @@
 
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
-use super::takeoff::{TakeoffRecord, TakeoffRig, refine_takeoff};
+use super::takeoff::{TakeoffRecord, TakeoffRig, bundle_adjust_takeoff, refine_takeoff};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
-use crate::imu::scale_alignment::{AlignmentPrior, ScaleAlignment};
+use crate::imu::scale_alignment::AlignmentPrior;
 use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::{SemidenseConfig, SemidenseMap};
+use crate::smoother::photometric_bundle::BundleConfig;
 use crate::smoother::{KeyframeWindow, RelativePose, WindowConfig};
 use crate::time::TimeNs;
 use crate::tracking::{
@@ -108,8 +109,8 @@ pub struct BootstrapConfig {
     pub fill_depthless_below_points: usize,
     /// …if it is closer than this to the keyframe tracked, over that one's median depth.
     pub fill_max_baseline_ratio: f64,
-    /// After a static start, the first map's views are re-posed by tracking them against it and
-    /// their scale aligned with the IMU this many times before it is tracked
+    /// After a static start, the first map's views are re-posed (`takeoff_refinement`) and the
+    /// first map triangulated again from them this many times before it is tracked
     /// ([`super::takeoff`]; 0 = the paper's bootstrap by dead reckoning alone).
     pub refine_takeoff_passes: u32,
     /// Prior standard deviation of the velocity at the rest state, m/s.
@@ -120,10 +121,30 @@ pub struct BootstrapConfig {
     pub takeoff_position_std_m: f64,
     /// Scale corrections farther from 1 than this are not applied (a failed alignment).
     pub takeoff_max_scale_correction: f64,
-    /// The take-off is re-tracked with the IMU white noise multiplied by this.
+    /// The take-off's IMU white noise is multiplied by this (over the tracker's inflated noise):
+    /// the re-tracking of `alignment`, the IMU residuals of `bundle_adjustment` (0.1: the
+    /// adjustment may bend the dead-reckoned take-off only where the images insist; at 1 it let
+    /// the vision shrink the demo's vertical take-off by 10 %).
     pub takeoff_imu_noise_factor: f64,
     /// Scale corrections within this many standard deviations of 1 are not applied.
     pub takeoff_min_significance_sigmas: f64,
+    /// How a refinement pass re-poses the take-off: `alignment` (track the views again, align
+    /// their scale with the IMU) or `bundle_adjustment` (the views' states and the first map's
+    /// depths optimised jointly with the IMU, [`crate::smoother::photometric_bundle`]).
+    pub takeoff_refinement: TakeoffRefinement,
+    /// Levenberg–Marquardt iterations per pyramid level of the take-off bundle adjustment.
+    pub takeoff_bundle_iterations: usize,
+    /// Each inverse depth is pulled toward its image neighbours' median with this relative
+    /// standard deviation in the take-off bundle adjustment.
+    pub takeoff_bundle_smoothness_rel_std: f64,
+}
+
+/// How the take-off refinement re-poses the first map's views.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TakeoffRefinement {
+    Alignment,
+    BundleAdjustment,
 }
 
 impl Default for BootstrapConfig {
@@ -149,13 +170,16 @@ impl Default for BootstrapConfig {
             rest_min_tilt_std_rad: 1e-3,
             fill_depthless_below_points: 1500,
             fill_max_baseline_ratio: 0.03,
-            refine_takeoff_passes: 0,
+            refine_takeoff_passes: 2,
             takeoff_velocity_std_m_s: 0.01,
             takeoff_accel_std_m_s2: 0.05,
             takeoff_position_std_m: 0.005,
             takeoff_max_scale_correction: 0.3,
-            takeoff_imu_noise_factor: 1.0,
+            takeoff_imu_noise_factor: 0.1,
             takeoff_min_significance_sigmas: 2.0,
+            takeoff_refinement: TakeoffRefinement::BundleAdjustment,
+            takeoff_bundle_iterations: 12,
+            takeoff_bundle_smoothness_rel_std: 0.1,
         }
     }
 }
@@ -233,7 +257,10 @@ pub struct OdometryStats {
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
     /// Scale alignments of the take-off's first map applied (one per refinement pass).
-    pub takeoff_alignments: Vec<ScaleAlignment>,
+    /// Scale correction of each applied take-off refinement pass.
+    pub takeoff_scales: Vec<f64>,
+    /// Wall time of each applied take-off refinement pass, s.
+    pub takeoff_refinement_s: Vec<f64>,
     pub jobs_dropped: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
@@ -657,8 +684,11 @@ impl Odometry {
         let Some(tk) = self.takeoff.as_ref() else {
             return false;
         };
-        if tk.keyframe_id != id || tk.passes >= b.refine_takeoff_passes {
-            return false;
+        if tk.keyframe_id != id
+            || tk.passes >= b.refine_takeoff_passes
+            || !self.cfg.tracking.use_vision
+        {
+            return false; // done, or the images are not to be used (`--no-vision`)
         }
         let rig = TakeoffRig {
             tracking: &self.cfg.tracking,
@@ -674,7 +704,22 @@ impl Odometry {
             imu_noise_factor: b.takeoff_imu_noise_factor,
             min_significance_sigmas: b.takeoff_min_significance_sigmas,
         };
-        let Some(r) = refine_takeoff(tk, kf.clone(), self.imu.make_contiguous(), &rig) else {
+        let started = std::time::Instant::now();
+        let imu = self.imu.make_contiguous();
+        let refined = match b.takeoff_refinement {
+            TakeoffRefinement::Alignment => refine_takeoff(tk, kf.clone(), imu, &rig),
+            TakeoffRefinement::BundleAdjustment => {
+                let cfg = BundleConfig {
+                    iterations_per_level: b.takeoff_bundle_iterations,
+                    start_velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                    accel_bias_std_m_s2: b.takeoff_accel_std_m_s2,
+                    smoothness_rel_std: b.takeoff_bundle_smoothness_rel_std,
+                    ..BundleConfig::default()
+                };
+                bundle_adjust_takeoff(tk, kf, imu, &rig, &cfg).map(|(r, _)| r)
+            }
+        };
+        let Some(r) = refined else {
             return false;
         };
         let Some(mut tk) = self.takeoff.take() else {
@@ -691,7 +736,10 @@ impl Odometry {
         tk.passes += 1;
         tk.frames = r.views.clone();
         self.start_keyframe(tk.keyframe.clone(), r.views, false);
-        self.stats.takeoff_alignments.push(r.alignment);
+        self.stats.takeoff_scales.push(r.scale);
+        self.stats
+            .takeoff_refinement_s
+            .push(started.elapsed().as_secs_f64());
         self.takeoff = Some(tk);
         true
     }

@@ -153,6 +153,8 @@ pub struct ReplayOutput {
     /// Scale factor applied to the first map by each take-off refinement pass
     /// (`[bootstrap] refine_takeoff_passes`).
     pub takeoff_scale_corrections: Vec<f64>,
+    /// Wall time of each applied take-off refinement pass, s.
+    pub takeoff_refinement_s: Vec<f64>,
     /// Wall time of each keyframe-window solve, s.
     pub window_solve_s: Vec<f64>,
     /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
@@ -297,7 +299,8 @@ fn replay_full(
     out.keyframe_reuses = stats.keyframe_reuses;
     out.keyframe_reuse_failures = stats.keyframe_reuse_failures;
     out.keyframes_stored = stats.keyframes_stored;
-    out.takeoff_scale_corrections = stats.takeoff_alignments.iter().map(|a| a.scale).collect();
+    out.takeoff_scale_corrections = stats.takeoff_scales.clone();
+    out.takeoff_refinement_s = stats.takeoff_refinement_s.clone();
     out.jobs_dropped = stats.jobs_dropped;
     out.window_solve_s = stats.window_solve_s;
     out.vignette_saturated_px = stats

@@ -37,6 +37,8 @@ pub struct ReplayReport {
     pub keyframes_stored: usize,
     /// Scale factor applied to the first map by each take-off refinement pass.
     pub takeoff_scale_corrections: Vec<f64>,
+    /// Wall time of each take-off refinement pass, ms (the frames meanwhile are IMU-only).
+    pub takeoff_refinement_ms: Vec<f64>,
     pub tracking_ms_p50: f64,
     pub tracking_ms_p99: f64,
     pub tracking_ms_max: f64,
@@ -139,6 +141,7 @@ impl ReplayReport {
             keyframe_reuse_failures: out.keyframe_reuse_failures,
             keyframes_stored: out.keyframes_stored,
             takeoff_scale_corrections: out.takeoff_scale_corrections.clone(),
+            takeoff_refinement_ms: out.takeoff_refinement_s.iter().map(|s| s * 1e3).collect(),
             tracking_ms_p50: pct(50.0),
             tracking_ms_p99: pct(99.0),
             tracking_ms_max: ms.last().copied().unwrap_or(0.0),
@@ -280,6 +283,12 @@ impl ReplayReport {
                 .map(|s| format!("{s:.3}"))
                 .collect();
             row("take-off scale corrections", v.join(" "));
+            let ms: Vec<String> = self
+                .takeoff_refinement_ms
+                .iter()
+                .map(|s| format!("{s:.0}"))
+                .collect();
+            row("take-off refinement ms", ms.join(" "));
         }
         row(
             "tracking ms p50/p99/max",

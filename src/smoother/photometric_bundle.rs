@@ -230,6 +230,8 @@ struct Linearization {
     /// `active_margin_px` at the linearisation point. Candidates are evaluated on the same set, so
     /// that points crossing the border do not make the cost jump.
     active: Vec<bool>,
+    /// Cost of each observation at the linearisation point (0 if not active).
+    obs_cost: Vec<f64>,
 }
 
 /// The problem: host, views, the IMU chain and the rig.
@@ -278,8 +280,14 @@ impl PhotometricBundle<'_> {
                     continue;
                 };
                 let cand = self.apply(&p, &step, level);
-                let lin_c =
-                    self.linearize(level, &cand, &imu_info, n_c, Some(&lin.active), &targets);
+                let lin_c = self.linearize(
+                    level,
+                    &cand,
+                    &imu_info,
+                    n_c,
+                    Some((&lin.active, &lin.obs_cost)),
+                    &targets,
+                );
                 if lin_c.cost.is_finite() && lin_c.cost < lin.cost {
                     let gain = (lin.cost - lin_c.cost) / lin.cost.max(1e-12);
                     p = cand;
@@ -441,7 +449,7 @@ impl PhotometricBundle<'_> {
         p: &Params,
         imu_info: &[SMatrix<f64, 9, 9>],
         n_c: usize,
-        active: Option<&[bool]>,
+        active: Option<(&[bool], &[f64])>,
         targets: &[f64],
     ) -> Linearization {
         let cfg = &self.cfg;
@@ -526,6 +534,7 @@ impl PhotometricBundle<'_> {
         let nv = self.views.len();
         let mut points = Vec::with_capacity(host.rays.len());
         let mut active_out = Vec::with_capacity(host.rays.len() * nv);
+        let mut obs_cost_out = Vec::with_capacity(host.rays.len() * nv);
         let (mut photo_sq, mut inliers, mut observations) = (0.0, 0, 0);
         for (i, ray) in host.rays.iter().enumerate() {
             let rho = p.inv_depth[i];
@@ -541,23 +550,30 @@ impl PhotometricBundle<'_> {
             for (j, (r_wb, p_wb)) in views.iter().enumerate() {
                 if wg <= 0.0 {
                     active_out.push(false);
+                    obs_cost_out.push(0.0);
                     continue;
                 }
                 let warped = self.warp(cam, ray, rho, r_wb, p_wb);
                 let counted = match active {
-                    Some(a) => a[i * nv + j],
+                    Some((a, _)) => a[i * nv + j],
                     None => warped
                         .as_ref()
                         .is_some_and(|(uv, _)| cam.in_image(uv, cfg.active_margin_px)),
                 };
                 active_out.push(counted);
                 if !counted {
+                    obs_cost_out.push(0.0);
                     continue;
                 }
                 observations += 1;
                 let Some((uv, jw)) = warped.filter(|(uv, _)| cam.in_image(uv, cfg.border_px))
                 else {
-                    cost += wg * outlier_cost;
+                    // Left the image since the linearisation: counted at its cost there, so that
+                    // leaving the image is neither penalised nor rewarded (a penalty made the
+                    // adjustment shrink the take-off to keep points inside).
+                    let c = active.map_or(wg * outlier_cost, |(_, c)| c[i * nv + j]);
+                    cost += c;
+                    obs_cost_out.push(c);
                     continue;
                 };
                 let pyr = self.views[j].pyramid;
@@ -566,7 +582,9 @@ impl PhotometricBundle<'_> {
                 // is evaluated (the pyramid's central differences were 2–10 % off it, enough to
                 // stall the steps along the IMU-constrained directions).
                 let Some((val, dx, dy)) = bilinear_with_gradient(pyr.level(level), u, v) else {
-                    cost += wg * outlier_cost;
+                    let c = active.map_or(wg * outlier_cost, |(_, c)| c[i * nv + j]);
+                    cost += c;
+                    obs_cost_out.push(c);
                     continue;
                 };
                 let (a, b) = p.brightness[j];
@@ -575,6 +593,7 @@ impl PhotometricBundle<'_> {
                 let ar = r.abs();
                 if ar > cfg.outlier_gray {
                     cost += wg * outlier_cost;
+                    obs_cost_out.push(wg * outlier_cost);
                     continue;
                 }
                 inliers += 1;
@@ -585,6 +604,7 @@ impl PhotometricBundle<'_> {
                     (k / ar, 2.0 * k * (ar - 0.5 * k))
                 };
                 cost += wg * rho_h / s2;
+                obs_cost_out.push(wg * rho_h / s2);
                 let w = wg * wh / s2;
                 let jr = Vector2::new(dx as f64, dy as f64).transpose() * jw;
                 let d_rho = jr[6];
@@ -613,6 +633,7 @@ impl PhotometricBundle<'_> {
             bc,
             points,
             active: active_out,
+            obs_cost: obs_cost_out,
         }
     }
 }
@@ -629,16 +650,33 @@ fn solve_step(lin: &Linearization, lambda: f64) -> Option<(DVector<f64>, Vec<f64
         s[(k, k)] *= 1.0 + lambda;
     }
     let mut b = lin.bc.clone();
+    // Accumulate the depth terms per pair of views in 8x8 blocks (upper triangle), then scatter.
+    let nv = (n - START) / PER_VIEW;
+    let mut blocks = vec![SMatrix::<f64, 8, 8>::zeros(); nv * nv];
+    let mut rhs = vec![SVector::<f64, 8>::zeros(); nv];
     for pt in &lin.points {
-        let hpp = pt.hpp * (1.0 + lambda);
-        for (ja, ca) in &pt.obs {
-            let oa = START + PER_VIEW * ja;
+        let inv = 1.0 / (pt.hpp * (1.0 + lambda));
+        for (k, (ja, ca)) in pt.obs.iter().enumerate() {
+            rhs[*ja] += ca * (pt.bp * inv);
+            let cs = ca * inv;
+            for (jb, cb) in &pt.obs[k..] {
+                blocks[ja * nv + jb] += cs * cb.transpose();
+            }
+        }
+    }
+    for ja in 0..nv {
+        let oa = START + PER_VIEW * ja;
+        for (a_i, &pa) in PHOTO_COLS.iter().enumerate() {
+            b[oa + pa] -= rhs[ja][a_i];
+        }
+        for jb in ja..nv {
+            let ob = START + PER_VIEW * jb;
+            let blk = &blocks[ja * nv + jb];
             for (a_i, &pa) in PHOTO_COLS.iter().enumerate() {
-                b[oa + pa] -= ca[a_i] * pt.bp / hpp;
-                for (jb, cb) in &pt.obs {
-                    let ob = START + PER_VIEW * jb;
-                    for (b_i, &pb) in PHOTO_COLS.iter().enumerate() {
-                        s[(oa + pa, ob + pb)] -= ca[a_i] * cb[b_i] / hpp;
+                for (b_i, &pb) in PHOTO_COLS.iter().enumerate() {
+                    s[(oa + pa, ob + pb)] -= blk[(a_i, b_i)];
+                    if jb != ja {
+                        s[(ob + pb, oa + pa)] -= blk[(a_i, b_i)];
                     }
                 }
             }
@@ -962,7 +1000,7 @@ mod tests {
                 &b.apply(&p, &(dc, drho), 0),
                 &imu_info,
                 n_c,
-                Some(&lin.active),
+                Some((&lin.active, &lin.obs_cost)),
                 &targets,
             )
             .cost
