@@ -17,8 +17,11 @@
 //! * IMU residual (eq. 13, rotation/position/velocity rows) between consecutive states, weighted by
 //!   the preintegrated covariance;
 //! * priors: the start velocity around zero (a take-off from rest), the accelerometer bias
-//!   around its value at rest, each inverse depth around its initial value (relative σ: keeps
-//!   points seen with little parallax in place), the brightness around `(1, 0)`.
+//!   around its value at rest, each inverse depth toward the median of its image neighbours'
+//!   (relative σ, the target held per linearisation as in DSO's initialiser: keeps points seen
+//!   with little parallax and points on repetitive texture from wandering), the brightness around
+//!   `(1, 0)`. No prior ties the depths to their initial values: it would hold the first map's
+//!   scale error against the IMU.
 //!
 //! Levenberg–Marquardt, coarse to fine over the host's pyramid levels (the same points on each),
 //! with the inverse depths eliminated by the Schur complement (their block is diagonal), as in
@@ -119,7 +122,7 @@ pub struct BundleConfig {
     pub start_velocity_std_m_s: f64,
     /// Prior standard deviation of the shared accelerometer bias around the start's, m/s².
     pub accel_bias_std_m_s2: f64,
-    /// Prior standard deviation of each inverse depth, relative to its initial value.
+    /// Standard deviation of each inverse depth around its neighbours' median, relative to it.
     pub smoothness_rel_std: f64,
     /// Neighbours (nearest host points in the image) whose median inverse depth each point's is
     /// pulled toward.
@@ -279,7 +282,7 @@ impl PhotometricBundle<'_> {
                     lambda *= 10.0;
                     continue;
                 };
-                let cand = self.apply(&p, &step, level);
+                let cand = self.apply(&p, &step);
                 let lin_c = self.linearize(
                     level,
                     &cand,
@@ -393,7 +396,7 @@ impl PhotometricBundle<'_> {
     }
 
     /// Applies an increment `[δc, δρ]`.
-    fn apply(&self, p: &Params, step: &(DVector<f64>, Vec<f64>), _level: usize) -> Params {
+    fn apply(&self, p: &Params, step: &(DVector<f64>, Vec<f64>)) -> Params {
         let (dc, drho) = step;
         let mut out = p.clone();
         out.start.nav.v_world_m_s += Vector3::new(dc[0], dc[1], dc[2]);
@@ -997,7 +1000,7 @@ mod tests {
         let cost_at = |dc: DVector<f64>, drho: Vec<f64>| {
             b.linearize(
                 0,
-                &b.apply(&p, &(dc, drho), 0),
+                &b.apply(&p, &(dc, drho)),
                 &imu_info,
                 n_c,
                 Some((&lin.active, &lin.obs_cost)),
