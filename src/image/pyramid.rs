@@ -41,6 +41,14 @@ impl Pyramid {
         (&self.grad_x[l], &self.grad_y[l])
     }
 
+    /// A pyramid of `num_levels` levels built from an 8-bit image (allocates; the per-frame paths
+    /// keep one pyramid and refill it with [`Pyramid::fill_from_u8`]).
+    pub fn from_u8(img: &Image<u8>, num_levels: usize) -> Self {
+        let mut p = Pyramid::new(img.width(), img.height(), num_levels);
+        p.fill_from_u8(img);
+        p
+    }
+
     /// Refills every level from an 8-bit image of the size given at construction.
     pub fn fill_from_u8(&mut self, img: &Image<u8>) {
         let base = &mut self.levels[0];

@@ -256,7 +256,6 @@ pub struct OdometryStats {
     pub keyframe_reuse_failures: usize,
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
-    /// Scale alignments of the take-off's first map applied (one per refinement pass).
     /// Scale correction of each applied take-off refinement pass.
     pub takeoff_scales: Vec<f64>,
     /// Wall time of each applied take-off refinement pass, s.
@@ -716,7 +715,7 @@ impl Odometry {
                     smoothness_rel_std: b.takeoff_bundle_smoothness_rel_std,
                     ..BundleConfig::default()
                 };
-                bundle_adjust_takeoff(tk, kf, imu, &rig, &cfg).map(|(r, _)| r)
+                bundle_adjust_takeoff(tk, kf, imu, &rig, &cfg)
             }
         };
         let Some(r) = refined else {
@@ -1053,11 +1052,7 @@ impl Odometry {
             let d = (new_pose.translation.vector - k.t_world_cam.translation.vector).norm();
             d < b.fill_max_baseline_ratio * k.median_depth_m
         });
-        let pyramid = || {
-            let mut pyr = Pyramid::new(self.rig.camera.width, self.rig.camera.height, NUM_LEVELS);
-            pyr.fill_from_u8(&s.keyframe_image);
-            pyr
-        };
+        let pyramid = || Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
         let fill = if self.phase == Phase::Tracking
             && is_new
             && on_the_spot

@@ -277,18 +277,18 @@ impl ReplayReport {
             ),
         );
         if !self.takeoff_scale_corrections.is_empty() {
-            let v: Vec<String> = self
-                .takeoff_scale_corrections
-                .iter()
-                .map(|s| format!("{s:.3}"))
-                .collect();
-            row("take-off scale corrections", v.join(" "));
-            let ms: Vec<String> = self
-                .takeoff_refinement_ms
-                .iter()
-                .map(|s| format!("{s:.0}"))
-                .collect();
-            row("take-off refinement ms", ms.join(" "));
+            let joined = |v: &[f64], decimals: usize| {
+                let s: Vec<String> = v.iter().map(|x| format!("{x:.decimals$}")).collect();
+                s.join(" ")
+            };
+            row(
+                "take-off scale corrections",
+                joined(&self.takeoff_scale_corrections, 3),
+            );
+            row(
+                "take-off refinement ms",
+                joined(&self.takeoff_refinement_ms, 0),
+            );
         }
         row(
             "tracking ms p50/p99/max",

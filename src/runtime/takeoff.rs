@@ -218,10 +218,7 @@ pub fn bundle_adjust_takeoff(
     imu: &[ImuSample],
     rig: &TakeoffRig,
     cfg: &BundleConfig,
-) -> Option<(
-    RefinedTakeoff,
-    crate::smoother::photometric_bundle::BundleResult,
-)> {
+) -> Option<RefinedTakeoff> {
     let rest = rec.rest;
     if rec.frames.is_empty() || imu.first().is_none_or(|s| s.t > rest.nav.t) {
         return None;
@@ -246,13 +243,12 @@ pub fn bundle_adjust_takeoff(
         t_prev = f.t;
     }
     let levels = kf.cameras.len();
-    let pyramid_of = |img: &crate::image::Image<u8>| {
-        let mut p = Pyramid::new(img.width(), img.height(), levels);
-        p.fill_from_u8(img);
-        p
-    };
-    let host_pyr = pyramid_of(&rec.keyframe.image);
-    let view_pyrs: Vec<Pyramid> = rec.frames.iter().map(|f| pyramid_of(&f.image)).collect();
+    let host_pyr = Pyramid::from_u8(&rec.keyframe.image, levels);
+    let view_pyrs: Vec<Pyramid> = rec
+        .frames
+        .iter()
+        .map(|f| Pyramid::from_u8(&f.image, levels))
+        .collect();
     let pts = kf.levels.first()?;
     let (rays, inv_depth): (Vec<_>, Vec<_>) = pts
         .p_kf_m
@@ -306,12 +302,11 @@ pub fn bundle_adjust_takeoff(
             ..f.clone()
         })
         .collect();
-    let refined = RefinedTakeoff {
+    Some(RefinedTakeoff {
         scale,
         rest: r.start,
         views,
         last: *r.views.last()?,
         tracked: rec.frames.len(),
-    };
-    Some((refined, r))
+    })
 }
