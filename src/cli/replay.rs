@@ -84,6 +84,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         bootstrap: cfg.bootstrap.clone(),
         window: cfg.window.clone(),
         reuse: cfg.reuse.clone(),
+        keyframe_bundle: cfg.keyframe_bundle.clone(),
         depth: match a.depth {
             DepthArg::Gt => DepthSource::GroundTruth,
             DepthArg::Semidense => DepthSource::Semidense,

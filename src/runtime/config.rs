@@ -1,6 +1,7 @@
 //! The daemon's TOML configuration (`config/vidslam.toml`). Unknown keys are errors; every error
 //! names the file, line and key.
 
+use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::odometry::BootstrapConfig;
 use crate::imu::static_init::StaticDetectorConfig;
@@ -26,6 +27,8 @@ pub struct Config {
     pub window: WindowConfig,
     /// `[reuse]`: tracking against the closest stored keyframe.
     pub reuse: ReuseConfig,
+    /// `[keyframe_bundle]`: in-flight photometric–inertial adjustment of each new keyframe.
+    pub keyframe_bundle: KeyframeBundleConfig,
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -1,6 +1,7 @@
 //! Running the pipeline: offline replay of recorded datasets, its report, and the configuration.
 
 pub mod config;
+pub mod keyframe_bundle;
 pub mod keyframe_store;
 pub mod map_depth;
 pub mod mapping_worker;

@@ -33,6 +33,7 @@
 //! replay gives the same poses every time. In real-time mode the tracking thread never waits: jobs
 //! that do not fit the queue are dropped and snapshots are taken when they arrive.
 
+use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
 use super::takeoff::{TakeoffRecord, TakeoffRig, bundle_adjust_takeoff, refine_takeoff};
@@ -237,6 +238,7 @@ pub struct OdometryConfig {
     pub bootstrap: BootstrapConfig,
     pub window: WindowConfig,
     pub reuse: ReuseConfig,
+    pub keyframe_bundle: KeyframeBundleConfig,
     /// Real-time mode: never wait for the mapper (non-deterministic).
     pub realtime: bool,
 }
@@ -260,6 +262,10 @@ pub struct OdometryStats {
     pub takeoff_scales: Vec<f64>,
     /// Wall time of each applied take-off refinement pass, s.
     pub takeoff_refinement_s: Vec<f64>,
+    /// Wall time of each in-flight keyframe adjustment (`[keyframe_bundle]`), s.
+    pub keyframe_bundle_s: Vec<f64>,
+    /// Median relative inverse-depth change of each in-flight keyframe adjustment.
+    pub keyframe_bundle_depth_changes: Vec<f64>,
     pub jobs_dropped: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
@@ -314,6 +320,11 @@ pub struct Odometry {
     init_started: Option<TimeNs>,
     /// The take-off from rest while its first map is built.
     takeoff: Option<TakeoffRecord>,
+    /// The keyframe started in flight and the frames tracked since, until it is installed.
+    kf_record: Option<KeyframeRecord>,
+    /// The tracking keyframe's depths come from the keyframe adjustment: the mapper's refreshes
+    /// of it are not installed.
+    tracking_kf_adjusted: bool,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
@@ -383,6 +394,8 @@ impl Odometry {
             rest_estimates: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
             init_started: None,
             takeoff: None,
+            kf_record: None,
+            tracking_kf_adjusted: false,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
@@ -593,6 +606,11 @@ impl Odometry {
                     // (While a stored keyframe is tracked, the mapper's keyframe is the one left
                     // behind until a new one is started: frames corrected against the stored
                     // one would not fit its pose.)
+                    if let Some(rec) = self.kf_record.as_mut()
+                        && self.pending_kf == Some(rec.id)
+                    {
+                        rec.views.push((frame.clone(), *self.tracker.state()));
+                    }
                     self.observe(frame.clone());
                 }
             }
@@ -741,6 +759,51 @@ impl Odometry {
             .push(started.elapsed().as_secs_f64());
         self.takeoff = Some(tk);
         true
+    }
+
+    /// The in-flight keyframe adjustment (`[keyframe_bundle]`) of keyframe `kf` about to be
+    /// installed: its depths and the states of the frames tracked since are optimised jointly
+    /// with the IMU; the tracker continues from the adjusted state of the last of them. Returns
+    /// the keyframe with the adjusted depths, `None` if it was not adjusted.
+    fn adjust_keyframe(&mut self, kf: &Keyframe, pyr: &Pyramid) -> Option<Keyframe> {
+        let rec = self.kf_record.take()?;
+        if rec.id != kf.id || !self.cfg.tracking.use_vision {
+            return None;
+        }
+        let started = std::time::Instant::now();
+        let imu = self.imu.make_contiguous();
+        let a = bundle_adjust_keyframe(
+            &rec,
+            kf,
+            pyr,
+            imu,
+            self.rig.t_body_cam,
+            self.rig.noise,
+            self.cfg.tracking.imu_noise_scale,
+            self.cfg.tracking.gradient_weight_gray_px,
+            &self.cfg.keyframe_bundle,
+        )?;
+        let last = *a.views.last()?;
+        if last.nav.t == self.tracker.state().nav.t {
+            let cov = *self.tracker.covariance();
+            self.tracker.reset_state(last, cov);
+        }
+        let out = Keyframe::new(
+            kf.id,
+            kf.t,
+            pyr,
+            &self.rig.camera,
+            kf.t_world_cam,
+            &a.points,
+            &self.cfg.tracking,
+        );
+        self.stats
+            .keyframe_bundle_s
+            .push(started.elapsed().as_secs_f64());
+        self.stats
+            .keyframe_bundle_depth_changes
+            .push(a.median_inv_depth_change);
+        Some(out)
     }
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
@@ -968,6 +1031,14 @@ impl Odometry {
             })
             .collect();
         let id = self.next_kf_id;
+        self.kf_record =
+            (self.phase == Phase::Tracking && self.cfg.keyframe_bundle.enabled).then(|| {
+                KeyframeRecord {
+                    id,
+                    start: *self.tracker.state(),
+                    views: Vec::new(),
+                }
+            });
         self.mapper_kf_pose = Some((id, frame.t_world_cam));
         self.next_kf_id += 1;
         self.newest_kf = Some(id);
@@ -1097,7 +1168,8 @@ impl Odometry {
             }
             Phase::Tracking => {
                 // (A keyframe tracked with guessed depths keeps them until its own map is full.)
-                self.frames_since_refresh >= self.cfg.bootstrap.refresh_every_frames
+                !self.tracking_kf_adjusted
+                    && self.frames_since_refresh >= self.cfg.bootstrap.refresh_every_frames
                     && n > self.tracking_kf_points + self.tracking_kf_points / 10
                     && (!self.tracking_kf_filled
                         || n >= self.cfg.bootstrap.fill_depthless_below_points)
@@ -1125,7 +1197,7 @@ impl Odometry {
             }
             None => pyramid(),
         };
-        let kf = Keyframe::new(
+        let mut kf = Keyframe::new(
             s.keyframe_id,
             s.keyframe_t,
             &pyr,
@@ -1134,6 +1206,15 @@ impl Odometry {
             &pts,
             &self.cfg.tracking,
         );
+        let mut adjusted = false;
+        if self.phase == Phase::Tracking
+            && is_new
+            && !filled
+            && let Some(k) = self.adjust_keyframe(&kf, &pyr)
+        {
+            kf = k;
+            adjusted = true;
+        }
         if self.phase == Phase::Initializing && self.refine_takeoff_with(&kf, s.keyframe_id) {
             return; // the first map is being triangulated again from the refined take-off
         }
@@ -1155,6 +1236,9 @@ impl Odometry {
         }
         self.tracking_map = Some(s.map.clone());
         self.tracking_kf_filled = filled;
+        if is_new {
+            self.tracking_kf_adjusted = adjusted;
+        }
         self.tracking_kf = Some(s.keyframe_id);
         self.tracking_kf_points = n;
         self.frames_since_refresh = 0;

@@ -6,6 +6,7 @@
 //! ground-truth depth maps (`mav0/depth0`, starting from the ground truth), which isolate tracking
 //! from mapping.
 
+use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
 use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, Phase, Rig};
@@ -49,6 +50,7 @@ pub struct ReplayOptions {
     pub bootstrap: BootstrapConfig,
     pub window: WindowConfig,
     pub reuse: ReuseConfig,
+    pub keyframe_bundle: KeyframeBundleConfig,
     pub depth: DepthSource,
     pub start: StartMode,
     /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
@@ -105,6 +107,7 @@ impl Default for ReplayOptions {
             bootstrap: BootstrapConfig::default(),
             window: WindowConfig::default(),
             reuse: ReuseConfig::default(),
+            keyframe_bundle: KeyframeBundleConfig::default(),
             depth: DepthSource::Semidense,
             start: StartMode::Static,
             realtime: false,
@@ -157,6 +160,10 @@ pub struct ReplayOutput {
     pub takeoff_refinement_s: Vec<f64>,
     /// Wall time of each keyframe-window solve, s.
     pub window_solve_s: Vec<f64>,
+    /// Wall time and median relative inverse-depth change of each in-flight keyframe
+    /// adjustment (`[keyframe_bundle]`).
+    pub keyframe_bundle_s: Vec<f64>,
+    pub keyframe_bundle_depth_changes: Vec<f64>,
     /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
     pub vignette_saturated_px: Option<u64>,
 }
@@ -247,6 +254,7 @@ fn replay_full(
         bootstrap: opts.bootstrap.clone(),
         window: opts.window.clone(),
         reuse: opts.reuse.clone(),
+        keyframe_bundle: opts.keyframe_bundle.clone(),
         realtime: opts.realtime,
     };
     let rig = Rig {
@@ -303,6 +311,8 @@ fn replay_full(
     out.takeoff_refinement_s = stats.takeoff_refinement_s.clone();
     out.jobs_dropped = stats.jobs_dropped;
     out.window_solve_s = stats.window_solve_s;
+    out.keyframe_bundle_s = stats.keyframe_bundle_s;
+    out.keyframe_bundle_depth_changes = stats.keyframe_bundle_depth_changes;
     out.vignette_saturated_px = stats
         .vignette_corrected
         .then_some(stats.vignette_saturated_px);

@@ -70,6 +70,13 @@ pub struct ReplayReport {
     pub window_solves: usize,
     pub window_ms_p50: f64,
     pub window_ms_max: f64,
+    /// In-flight keyframe adjustments (`[keyframe_bundle]`, on the odometry thread when a new
+    /// keyframe is installed, not included in `tracking_ms`), their wall time, ms, and the median
+    /// over keyframes of each adjustment's median relative inverse-depth change, %.
+    pub keyframe_bundles: usize,
+    pub keyframe_bundle_ms_p50: f64,
+    pub keyframe_bundle_ms_max: f64,
+    pub keyframe_bundle_depth_change_median_pct: f64,
     /// Images divided by the dataset's vignetting (`cam0/vignette.yaml`), and the pixels that
     /// clipped at 255 doing so.
     pub vignette_corrected: bool,
@@ -107,6 +114,14 @@ impl ReplayReport {
         map_ms.sort_by(f64::total_cmp);
         let mut window_ms: Vec<f64> = out.window_solve_s.iter().map(|t| t * 1e3).collect();
         window_ms.sort_by(f64::total_cmp);
+        let mut kb_ms: Vec<f64> = out.keyframe_bundle_s.iter().map(|t| t * 1e3).collect();
+        kb_ms.sort_by(f64::total_cmp);
+        let mut kb_change: Vec<f64> = out
+            .keyframe_bundle_depth_changes
+            .iter()
+            .map(|c| c * 100.0)
+            .collect();
+        kb_change.sort_by(f64::total_cmp);
         let mut phases = BTreeMap::new();
         for p in &out.phases {
             *phases.entry(p.as_str().to_string()).or_insert(0) += 1;
@@ -181,6 +196,10 @@ impl ReplayReport {
             window_solves: out.window_solve_s.len(),
             window_ms_p50: percentile(&window_ms, 50.0),
             window_ms_max: window_ms.iter().copied().fold(0.0, f64::max),
+            keyframe_bundles: kb_ms.len(),
+            keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
+            keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),
+            keyframe_bundle_depth_change_median_pct: percentile(&kb_change, 50.0),
             vignette_corrected: out.vignette_saturated_px.is_some(),
             vignette_saturated_px: out.vignette_saturated_px.unwrap_or(0),
             semidense_points: out
@@ -355,6 +374,18 @@ impl ReplayReport {
                 format!(
                     "{} solves, ms p50/max {:.2} / {:.2}",
                     self.window_solves, self.window_ms_p50, self.window_ms_max
+                ),
+            );
+        }
+        if self.keyframe_bundles > 0 {
+            row(
+                "keyframe adjustments",
+                format!(
+                    "{}, ms p50/max {:.0} / {:.0}, depth change median {:.1} %",
+                    self.keyframe_bundles,
+                    self.keyframe_bundle_ms_p50,
+                    self.keyframe_bundle_ms_max,
+                    self.keyframe_bundle_depth_change_median_pct
                 ),
             );
         }

@@ -30,14 +30,13 @@
 //! 12 views and 3000 points, 2 cores): in `--realtime` the frames meanwhile queue. It belongs in
 //! the mapping thread; not done yet.
 
+use super::keyframe_bundle::{host_points, imu_chain};
 use super::mapping_worker::MapFrame;
 use crate::camera::CameraModel;
 use crate::image::Pyramid;
 use crate::imu::scale_alignment::{AlignmentPrior, AlignmentSample, align_scale};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
-use crate::smoother::photometric_bundle::{
-    BundleConfig, BundleView, HostPoints, PhotometricBundle,
-};
+use crate::smoother::photometric_bundle::{BundleConfig, BundleView, PhotometricBundle};
 use crate::tracking::{Keyframe, Tracker, TrackerConfig};
 use nalgebra::Isometry3;
 
@@ -226,22 +225,26 @@ pub fn bundle_adjust_takeoff(
     let noise = rig.noise;
     let inflate = (rig.tracking.imu_noise_scale * rig.imu_noise_factor).powi(2);
     // The chain: rest → frame 1 → frame 2 …, each frame dead-reckoned from rest.
-    let mut t_prev = rest.nav.t;
-    let mut pres = Vec::with_capacity(rec.frames.len());
-    let mut states = Vec::with_capacity(rec.frames.len());
+    let pres = imu_chain(
+        rest.nav.t,
+        rec.frames.iter().map(|f| f.t),
+        &rest.bias,
+        imu,
+        &noise,
+        inflate,
+    );
     let mut from_rest = Preintegration::new(rest.nav.t, rest.bias);
-    for f in &rec.frames {
-        let mut pre = Preintegration::new(t_prev, rest.bias);
-        pre.integrate(imu, f.t, Some(&noise));
-        pre.cov *= inflate;
-        pres.push(pre);
-        from_rest.integrate(imu, f.t, None);
-        states.push(FrameState {
-            nav: from_rest.predict(&rest.nav, &rest.bias),
-            bias: rest.bias,
-        });
-        t_prev = f.t;
-    }
+    let states: Vec<FrameState> = rec
+        .frames
+        .iter()
+        .map(|f| {
+            from_rest.integrate(imu, f.t, None);
+            FrameState {
+                nav: from_rest.predict(&rest.nav, &rest.bias),
+                bias: rest.bias,
+            }
+        })
+        .collect();
     let levels = kf.cameras.len();
     let host_pyr = Pyramid::from_u8(&rec.keyframe.image, levels);
     let view_pyrs: Vec<Pyramid> = rec
@@ -249,28 +252,16 @@ pub fn bundle_adjust_takeoff(
         .iter()
         .map(|f| Pyramid::from_u8(&f.image, levels))
         .collect();
-    let pts = kf.levels.first()?;
-    let (rays, inv_depth): (Vec<_>, Vec<_>) = pts
-        .p_kf_m
-        .iter()
-        .filter(|p| p[2] > 0.0)
-        .map(|p| {
-            let p = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-            (p / p.z, 1.0 / p.z)
-        })
-        .unzip();
-    let host = HostPoints::from_pyramid(
-        &host_pyr,
-        kf.cameras.clone(),
-        rays,
-        inv_depth,
-        rig.tracking.gradient_weight_gray_px,
-    );
+    kf.levels.first()?;
+    let host = host_points(kf, &host_pyr, rig.tracking.gradient_weight_gray_px);
+    // A take-off from rest: the start velocity's prior is zero.
+    let mut start = rest;
+    start.nav.v_world_m_s = nalgebra::Vector3::zeros();
     let problem = PhotometricBundle {
         t_world_host_cam: kf.t_world_cam,
         t_body_cam: rig.t_body_cam,
         host,
-        start: rest,
+        start,
         views: states
             .iter()
             .zip(&view_pyrs)

@@ -1,0 +1,226 @@
+//! In-flight refinement of each new keyframe before it is tracked: the joint photometric–inertial
+//! bundle adjustment of the take-off ([`crate::smoother::photometric_bundle`]) applied to every
+//! keyframe, with the frames tracked since it as views.
+//!
+//! The semidense mapper triangulates a keyframe from the poses tracking gave its views, and those
+//! poses were tracked against the previous keyframe's map: a map's scale or distortion error is
+//! passed on to the next map through the poses (README, *Why S-V101 fails*). Here the keyframe's
+//! inverse depths, its views' states, the velocity at the keyframe and the accelerometer bias are
+//! optimised together, the views chained by the IMU (eq. 13) from the keyframe's state (its pose is
+//! the gauge, its velocity has a prior around the keyframe window's estimate), so the map that is
+//! installed for tracking agrees with the IMU's metric displacement and with every view's pixels.
+//!
+//! It runs on the odometry thread when the keyframe's map is installed (`[keyframe_bundle]`).
+
+use super::mapping_worker::MapFrame;
+use crate::image::Pyramid;
+use crate::imu::{FrameState, ImuNoise, ImuSample, Preintegration};
+use crate::smoother::photometric_bundle::{
+    BundleConfig, BundleView, HostPoints, PhotometricBundle,
+};
+use crate::tracking::{DepthPoint, Keyframe};
+use nalgebra::{Isometry3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Settings of the in-flight keyframe adjustment (the `[keyframe_bundle]` table).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct KeyframeBundleConfig {
+    /// Adjust every new keyframe (after the take-off) before it is tracked.
+    pub enabled: bool,
+    /// Fewer views than this: the keyframe is installed as the mapper built it.
+    pub min_views: usize,
+    /// Levenberg–Marquardt iterations per pyramid level.
+    pub iterations_per_level: usize,
+    /// Prior standard deviation of the keyframe's velocity around the window's estimate, m/s.
+    pub velocity_std_m_s: f64,
+    /// Prior standard deviation of the accelerometer bias around the keyframe's, m/s².
+    pub accel_bias_std_m_s2: f64,
+    /// Each inverse depth is pulled toward its image neighbours' median with this relative σ.
+    pub smoothness_rel_std: f64,
+    /// Standard deviation of each inverse depth around the mapper's, relative (0 = none).
+    pub depth_rel_std: f64,
+    /// The IMU white noise of the tracker (`[tracking] imu_noise_scale`) is multiplied by this.
+    pub imu_noise_factor: f64,
+}
+
+impl Default for KeyframeBundleConfig {
+    fn default() -> Self {
+        KeyframeBundleConfig {
+            enabled: true,
+            min_views: 3,
+            iterations_per_level: 6,
+            velocity_std_m_s: 0.01,
+            accel_bias_std_m_s2: 0.05,
+            smoothness_rel_std: 0.1,
+            depth_rel_std: 0.05,
+            imu_noise_factor: 0.1,
+        }
+    }
+}
+
+/// A keyframe started in the mapper and the frames tracked since, kept until it is installed.
+#[derive(Clone, Debug)]
+pub struct KeyframeRecord {
+    /// Mapper id of the keyframe.
+    pub id: u32,
+    /// The keyframe's state when it was started (after the keyframe window's correction).
+    pub start: FrameState,
+    /// Frames tracked since, with their tracked states, oldest first (world frame).
+    pub views: Vec<(MapFrame, FrameState)>,
+}
+
+/// What the adjustment produced.
+#[derive(Clone, Debug)]
+pub struct AdjustedKeyframe {
+    /// The keyframe's points with their adjusted inverse depths (level 0 pixels).
+    pub points: Vec<DepthPoint>,
+    /// The keyframe's state with the adjusted velocity and accelerometer bias.
+    pub start: FrameState,
+    /// The views' adjusted states, oldest first.
+    pub views: Vec<FrameState>,
+    /// Median relative change of the inverse depths.
+    pub median_inv_depth_change: f64,
+}
+
+/// The host points of `kf`'s level-0 point set (rays, inverse depths, host intensities and
+/// gradient weights on every level of `host`).
+pub fn host_points(kf: &Keyframe, host: &Pyramid, gradient_weight_gray_px: f32) -> HostPoints {
+    let (rays, inv_depth): (Vec<_>, Vec<_>) = kf
+        .levels
+        .first()
+        .map(|l| l.p_kf_m.as_slice())
+        .unwrap_or_default()
+        .iter()
+        .filter(|p| p[2] > 0.0)
+        .map(|p| {
+            let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            (p / p.z, 1.0 / p.z)
+        })
+        .unzip();
+    HostPoints::from_pyramid(
+        host,
+        kf.cameras.clone(),
+        rays,
+        inv_depth,
+        gradient_weight_gray_px,
+    )
+}
+
+/// The IMU between consecutive times: `t0 → times[0] → times[1] …`, each linearised at `bias`,
+/// its covariance integrated with `noise` and multiplied by `inflate`.
+pub fn imu_chain(
+    t0: crate::time::TimeNs,
+    times: impl IntoIterator<Item = crate::time::TimeNs>,
+    bias: &crate::imu::ImuBias,
+    imu: &[ImuSample],
+    noise: &ImuNoise,
+    inflate: f64,
+) -> Vec<Preintegration> {
+    let mut t_prev = t0;
+    times
+        .into_iter()
+        .map(|t| {
+            let mut pre = Preintegration::new(t_prev, *bias);
+            pre.integrate(imu, t, Some(noise));
+            pre.cov *= inflate;
+            t_prev = t;
+            pre
+        })
+        .collect()
+}
+
+/// Adjusts keyframe `kf` (its image pyramid `host_pyr`) with the views of `rec`; `imu` must cover the
+/// keyframe's time onwards. `None` if there is too little to adjust or the solution is unsound.
+#[allow(clippy::too_many_arguments)]
+pub fn bundle_adjust_keyframe(
+    rec: &KeyframeRecord,
+    kf: &Keyframe,
+    host_pyr: &Pyramid,
+    imu: &[ImuSample],
+    t_body_cam: Isometry3<f64>,
+    noise: ImuNoise,
+    tracker_imu_noise_scale: f64,
+    gradient_weight_gray_px: f32,
+    cfg: &KeyframeBundleConfig,
+) -> Option<AdjustedKeyframe> {
+    let start = rec.start;
+    if rec.views.len() < cfg.min_views.max(1) || imu.first().is_none_or(|s| s.t > start.nav.t) {
+        return None;
+    }
+    let levels = host_pyr.num_levels();
+    let inflate = (tracker_imu_noise_scale * cfg.imu_noise_factor).powi(2);
+    let pres = imu_chain(
+        start.nav.t,
+        rec.views.iter().map(|(f, _)| f.t),
+        &start.bias,
+        imu,
+        &noise,
+        inflate,
+    );
+    let view_pyrs: Vec<Pyramid> = rec
+        .views
+        .iter()
+        .map(|(f, _)| Pyramid::from_u8(&f.image, levels))
+        .collect();
+    let host = host_points(kf, host_pyr, gradient_weight_gray_px);
+    let rays = host.rays.clone();
+    let inv_before = host.inv_depth_m_inv.clone();
+    let problem = PhotometricBundle {
+        t_world_host_cam: kf.t_world_cam,
+        t_body_cam,
+        host,
+        start,
+        views: rec
+            .views
+            .iter()
+            .zip(&view_pyrs)
+            .zip(pres)
+            .map(|(((_, x), pyramid), pre)| BundleView {
+                pyramid,
+                state: *x,
+                pre,
+            })
+            .collect(),
+        noise,
+        cfg: BundleConfig {
+            iterations_per_level: cfg.iterations_per_level,
+            start_velocity_std_m_s: cfg.velocity_std_m_s,
+            accel_bias_std_m_s2: cfg.accel_bias_std_m_s2,
+            smoothness_rel_std: cfg.smoothness_rel_std,
+            initial_depth_rel_std: cfg.depth_rel_std,
+            ..BundleConfig::default()
+        },
+    };
+    let r = problem.solve()?;
+    let cam = kf.cameras.first()?;
+    let mut changes = Vec::with_capacity(rays.len());
+    let points: Vec<DepthPoint> = rays
+        .iter()
+        .zip(&r.inv_depth_m_inv)
+        .zip(&inv_before)
+        .filter_map(|((ray, &rho), &rho0)| {
+            if !(rho.is_finite() && rho > 0.0) {
+                return None;
+            }
+            let uv = cam.project(ray)?;
+            changes.push(((rho - rho0) / rho0).abs());
+            Some(DepthPoint {
+                u_px: uv.x as f32,
+                v_px: uv.y as f32,
+                inv_depth_m_inv: rho as f32,
+            })
+        })
+        .collect();
+    if points.is_empty() {
+        return None;
+    }
+    let mid = changes.len() / 2;
+    let median_inv_depth_change = *changes.select_nth_unstable_by(mid, f64::total_cmp).1;
+    Some(AdjustedKeyframe {
+        points,
+        start: r.start,
+        views: r.views,
+        median_inv_depth_change,
+    })
+}
