@@ -75,8 +75,6 @@ pub struct KeyframeRecord {
 pub struct AdjustedKeyframe {
     /// The keyframe's points with their adjusted inverse depths (level 0 pixels).
     pub points: Vec<DepthPoint>,
-    /// The keyframe's state with the adjusted velocity and accelerometer bias.
-    pub start: FrameState,
     /// The views' adjusted states, oldest first.
     pub views: Vec<FrameState>,
     /// Median relative change of the inverse depths.
@@ -164,8 +162,6 @@ pub fn bundle_adjust_keyframe(
         .map(|(f, _)| Pyramid::from_u8(&f.image, levels))
         .collect();
     let host = host_points(kf, host_pyr, gradient_weight_gray_px);
-    let rays = host.rays.clone();
-    let inv_before = host.inv_depth_m_inv.clone();
     let problem = PhotometricBundle {
         t_world_host_cam: kf.t_world_cam,
         t_body_cam,
@@ -194,11 +190,13 @@ pub fn bundle_adjust_keyframe(
     };
     let r = problem.solve()?;
     let cam = kf.cameras.first()?;
-    let mut changes = Vec::with_capacity(rays.len());
-    let points: Vec<DepthPoint> = rays
+    let given = &problem.host;
+    let mut changes = Vec::with_capacity(given.rays.len());
+    let points: Vec<DepthPoint> = given
+        .rays
         .iter()
         .zip(&r.inv_depth_m_inv)
-        .zip(&inv_before)
+        .zip(&given.inv_depth_m_inv)
         .filter_map(|((ray, &rho), &rho0)| {
             if !(rho.is_finite() && rho > 0.0) {
                 return None;
@@ -219,7 +217,6 @@ pub fn bundle_adjust_keyframe(
     let median_inv_depth_change = *changes.select_nth_unstable_by(mid, f64::total_cmp).1;
     Some(AdjustedKeyframe {
         points,
-        start: r.start,
         views: r.views,
         median_inv_depth_change,
     })

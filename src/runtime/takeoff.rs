@@ -252,7 +252,9 @@ pub fn bundle_adjust_takeoff(
         .iter()
         .map(|f| Pyramid::from_u8(&f.image, levels))
         .collect();
-    kf.levels.first()?;
+    if kf.levels.is_empty() {
+        return None;
+    }
     let host = host_points(kf, &host_pyr, rig.tracking.gradient_weight_gray_px);
     // A take-off from rest: the start velocity's prior is zero.
     let mut start = rest;
