@@ -112,6 +112,49 @@ fn offline_replays_are_identical() {
     }
 }
 
+/// The take-off refinement and the in-flight keyframe adjustment run on a thread of their own;
+/// offline their results are applied a fixed number of frames after they were started (as they
+/// would arrive in real time): the take-off's frames dead-reckoned meanwhile are re-predicted, the
+/// frames tracked meanwhile tracked again against the adjusted keyframe — and the replay stays
+/// deterministic.
+#[test]
+fn refinements_applied_frames_late_keep_replays_identical() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions {
+        max_seconds: Some(4.5),
+        ..Default::default()
+    };
+    opts.keyframe_bundle.lag_frames = 3;
+    opts.bootstrap.takeoff_lag_frames = 5;
+    let a = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let b = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    assert!(!a.keyframe_bundle_s.is_empty(), "no keyframe adjusted");
+    assert_eq!(a.keyframe_bundle_s.len(), b.keyframe_bundle_s.len());
+    // Every adjustment came back 3 frames late: 3 frames tracked again for each.
+    assert_eq!(a.catch_up_frames, 3 * a.keyframe_bundle_s.len());
+    assert_eq!(
+        a.takeoff_refinement_s.len(),
+        2,
+        "both take-off passes applied"
+    );
+    assert_eq!(a.refinements_discarded, 0);
+    assert_eq!(a.refinements_dropped, 0);
+    let (ta, tb) = (trajectory(&a), trajectory(&b));
+    assert_eq!(ta.poses.len(), tb.poses.len());
+    for (p, q) in ta.poses.iter().zip(&tb.poses) {
+        assert_eq!(p, q, "replays differ");
+    }
+    // Applied late, the adjustment still lands on the flight.
+    let e = eval_against_truth(&dir, &a);
+    println!(
+        "take-off lag 5, keyframe lag 3 frames: {} keyframes adjusted, ATE {:.2} cm",
+        a.keyframe_bundle_s.len(),
+        e.ate_rmse_m * 100.0
+    );
+    assert!(e.ate_rmse_m < 0.03, "{}", e.ate_rmse_m);
+    assert!(a.frames.iter().all(|r| r.state.is_finite()));
+}
+
 #[test]
 fn black_frames_lose_tracking_and_it_recovers_with_a_reset() {
     let dir = takeoff();
@@ -200,24 +243,30 @@ fn real_clip_on_the_pad_gives_a_valid_still_pose_from_the_first_second() {
 #[test]
 fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
     let dir = takeoff();
+    // 4.5 s: the take-off refinement and the first in-flight keyframe adjustments run on their
+    // thread meanwhile.
     let opts = ReplayOptions {
         realtime: true,
-        max_seconds: Some(3.0),
+        max_seconds: Some(4.5),
         ..Default::default()
     };
     let started = std::time::Instant::now();
     let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
     let wall_s = started.elapsed().as_secs_f64();
     // Paced at the frame timestamps: about as long as the data, not less.
-    assert!(wall_s >= 2.9, "{wall_s}");
+    assert!(wall_s >= 4.4, "{wall_s}");
     assert!(out.frames.iter().all(|r| {
         let p = pose_of(&r.state);
         p.translation.vector.iter().all(|v| v.is_finite())
     }));
     println!(
-        "real time: {} frames in {wall_s:.2} s, mapper jobs dropped {}",
+        "real time: {} frames in {wall_s:.2} s, mapper jobs dropped {}, keyframe adjustments \
+         applied {} (dropped {}, discarded {})",
         out.frames.len(),
-        out.jobs_dropped
+        out.jobs_dropped,
+        out.keyframe_bundle_s.len(),
+        out.refinements_dropped,
+        out.refinements_discarded
     );
 }
 

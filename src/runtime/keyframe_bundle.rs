@@ -10,7 +10,9 @@
 //! the gauge, its velocity has a prior around the keyframe window's estimate), so the map that is
 //! installed for tracking agrees with the IMU's metric displacement and with every view's pixels.
 //!
-//! It runs on the odometry thread when the keyframe's map is installed (`[keyframe_bundle]`).
+//! It runs on a thread of its own ([`super::refinement_worker`]) once the keyframe's map is
+//! installed (`[keyframe_bundle]`); [`carry_correction`] moves the state tracked meanwhile onto
+//! the adjusted one.
 
 use super::mapping_worker::MapFrame;
 use crate::image::Pyramid;
@@ -18,6 +20,7 @@ use crate::imu::{FrameState, ImuNoise, ImuSample, Preintegration};
 use crate::smoother::photometric_bundle::{
     BundleConfig, BundleView, HostPoints, PhotometricBundle,
 };
+use crate::tracking::pose_of;
 use crate::tracking::{DepthPoint, Keyframe};
 use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -42,6 +45,10 @@ pub struct KeyframeBundleConfig {
     pub depth_rel_std: f64,
     /// The IMU white noise of the tracker (`[tracking] imu_noise_scale`) is multiplied by this.
     pub imu_noise_factor: f64,
+    /// The adjusted keyframe is installed this many frames after its adjustment started (0 =
+    /// before the next frame is tracked): offline exactly, in real time at the earliest (later if
+    /// the adjustment takes longer). Until then the previous keyframe is tracked.
+    pub lag_frames: u64,
 }
 
 impl Default for KeyframeBundleConfig {
@@ -55,6 +62,7 @@ impl Default for KeyframeBundleConfig {
             smoothness_rel_std: 0.1,
             depth_rel_std: 0.05,
             imu_noise_factor: 0.1,
+            lag_frames: 0,
         }
     }
 }
@@ -220,4 +228,150 @@ pub fn bundle_adjust_keyframe(
         views: r.views,
         median_inv_depth_change,
     })
+}
+
+/// The state `now` moved by the correction the adjustment made to a view: that view was tracked at
+/// `tracked` and adjusted to `adjusted`, with the keyframe's camera at `kf_then`; the keyframe is at
+/// `kf_now` (the keyframe window may have moved it since). The view's pose correction
+/// `C = P_adj · P_tracked⁻¹` is applied to the pose, its velocity change (rotated by `C`) and its
+/// bias changes are added. `now` is the view itself (same time, keyframe unmoved): `adjusted`.
+pub fn carry_correction(
+    now: &FrameState,
+    tracked: &FrameState,
+    adjusted: &FrameState,
+    kf_then: &Isometry3<f64>,
+    kf_now: &Isometry3<f64>,
+) -> FrameState {
+    if now.nav.t == tracked.nav.t && kf_then == kf_now {
+        return *adjusted;
+    }
+    // The keyframe's move since, in the world: `D = K_now · K_then⁻¹`.
+    let d = kf_now * kf_then.inverse();
+    let c = pose_of(adjusted) * pose_of(tracked).inverse();
+    let c_now = d * c * d.inverse();
+    let p = c_now * pose_of(now);
+    let r_d = d.rotation;
+    let v_then = r_d.inverse() * now.nav.v_world_m_s;
+    let v = r_d * (adjusted.nav.v_world_m_s + c.rotation * (v_then - tracked.nav.v_world_m_s));
+    let mut x = *now;
+    x.nav.r_world_body = p.rotation;
+    x.nav.p_world_m = p.translation.vector;
+    x.nav.v_world_m_s = v;
+    x.bias.gyro_rad_s += adjusted.bias.gyro_rad_s - tracked.bias.gyro_rad_s;
+    x.bias.accel_m_s2 += adjusted.bias.accel_m_s2 - tracked.bias.accel_m_s2;
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imu::{ImuBias, NavState};
+    use crate::time::TimeNs;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn state(t_ns: i64, axis_angle: [f64; 3], p: [f64; 3], v: [f64; 3], ba: f64) -> FrameState {
+        FrameState {
+            nav: NavState {
+                t: TimeNs(t_ns),
+                r_world_body: UnitQuaternion::from_scaled_axis(Vector3::from(axis_angle)),
+                p_world_m: Vector3::from(p),
+                v_world_m_s: Vector3::from(v),
+            },
+            bias: ImuBias {
+                gyro_rad_s: Vector3::new(0.001, -0.002, 0.0005),
+                accel_m_s2: Vector3::new(ba, 0.02, -0.01),
+            },
+        }
+    }
+
+    fn kf(angle_rad: f64, x_m: f64) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(x_m, 0.3, 1.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, angle_rad)),
+        )
+    }
+
+    #[test]
+    fn the_view_itself_becomes_the_adjusted_state() {
+        let tracked = state(
+            100,
+            [0.1, 0.2, 0.3],
+            [1.0, 2.0, 3.0],
+            [0.5, 0.0, -0.1],
+            0.01,
+        );
+        let adjusted = state(
+            100,
+            [0.11, 0.19, 0.3],
+            [1.02, 2.0, 2.99],
+            [0.52, 0.01, -0.1],
+            0.03,
+        );
+        let k = kf(0.2, 1.0);
+        assert_eq!(
+            carry_correction(&tracked, &tracked, &adjusted, &k, &k),
+            adjusted
+        );
+    }
+
+    #[test]
+    fn a_later_state_keeps_its_motion_relative_to_the_corrected_view() {
+        let tracked = state(
+            100,
+            [0.1, 0.2, 0.3],
+            [1.0, 2.0, 3.0],
+            [0.5, 0.0, -0.1],
+            0.01,
+        );
+        let adjusted = state(
+            100,
+            [0.12, 0.18, 0.31],
+            [1.03, 1.98, 2.99],
+            [0.53, 0.01, -0.1],
+            0.03,
+        );
+        // `now` is 0.1 s later: the tracked view moved by a body-frame motion M, velocity turned.
+        let m = Isometry3::from_parts(
+            Translation3::new(0.05, -0.01, 0.002),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.03, -0.02)),
+        );
+        let mut now = tracked;
+        now.nav.t = TimeNs(200);
+        let p_now = pose_of(&tracked) * m;
+        now.nav.r_world_body = p_now.rotation;
+        now.nav.p_world_m = p_now.translation.vector;
+        now.nav.v_world_m_s = Vector3::new(0.6, 0.05, -0.1);
+        now.bias.accel_m_s2.x = 0.015;
+        // Whatever the keyframe window did to the keyframe meanwhile (moved both keyframe and
+        // state by the same world transform W), the result is W applied to the unmoved answer.
+        let k0 = kf(0.2, 1.0);
+        let w = Isometry3::from_parts(
+            Translation3::new(0.02, -0.04, 0.01),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.01, -0.02, 0.05)),
+        );
+        let unmoved = carry_correction(&now, &tracked, &adjusted, &k0, &k0);
+        // Unmoved: the adjusted view followed by the same body motion.
+        let expect = pose_of(&adjusted) * m;
+        let got = pose_of(&unmoved);
+        assert!((got.translation.vector - expect.translation.vector).norm() < 1e-12);
+        assert!(got.rotation.angle_to(&expect.rotation) < 1e-12);
+        let c = pose_of(&adjusted) * pose_of(&tracked).inverse();
+        let v_expect =
+            adjusted.nav.v_world_m_s + c.rotation * (now.nav.v_world_m_s - tracked.nav.v_world_m_s);
+        assert!((unmoved.nav.v_world_m_s - v_expect).norm() < 1e-12);
+        assert!((unmoved.bias.accel_m_s2.x - (0.015 + 0.02)).abs() < 1e-12);
+        assert_eq!(unmoved.nav.t, TimeNs(200));
+
+        let mut now_w = now;
+        let p = w * pose_of(&now);
+        now_w.nav.r_world_body = p.rotation;
+        now_w.nav.p_world_m = p.translation.vector;
+        now_w.nav.v_world_m_s = w.rotation * now.nav.v_world_m_s;
+        let moved = carry_correction(&now_w, &tracked, &adjusted, &k0, &(w * k0));
+        let expect = w * pose_of(&unmoved);
+        let got = pose_of(&moved);
+        assert!((got.translation.vector - expect.translation.vector).norm() < 1e-12);
+        assert!(got.rotation.angle_to(&expect.rotation) < 1e-12);
+        assert!((moved.nav.v_world_m_s - w.rotation * unmoved.nav.v_world_m_s).norm() < 1e-12);
+    }
 }

@@ -6,6 +6,7 @@ pub mod keyframe_store;
 pub mod map_depth;
 pub mod mapping_worker;
 pub mod odometry;
+pub mod refinement_worker;
 pub mod replay;
 pub mod report;
 pub mod takeoff;

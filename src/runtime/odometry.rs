@@ -33,10 +33,14 @@
 //! replay gives the same poses every time. In real-time mode the tracking thread never waits: jobs
 //! that do not fit the queue are dropped and snapshots are taken when they arrive.
 
-use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
+use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, carry_correction};
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
-use super::takeoff::{TakeoffRecord, TakeoffRig, bundle_adjust_takeoff, refine_takeoff};
+use super::refinement_worker::{
+    AdjustedKeyframe, KeyframeJob, RefineJob, RefineResult, RefineSettings, RefinementThread,
+    TakeoffJob,
+};
+use super::takeoff::{RefinedTakeoff, TakeoffRecord};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
 use crate::imu::scale_alignment::AlignmentPrior;
@@ -114,6 +118,10 @@ pub struct BootstrapConfig {
     /// first map triangulated again from them this many times before it is tracked
     /// ([`super::takeoff`]; 0 = the paper's bootstrap by dead reckoning alone).
     pub refine_takeoff_passes: u32,
+    /// A refinement pass, which runs on a thread of its own, is applied this many frames after it
+    /// started (0 = before the next frame): offline exactly, in real time at the earliest (later
+    /// if it takes longer). Until then the frames are dead-reckoned.
+    pub takeoff_lag_frames: u64,
     /// Prior standard deviation of the velocity at the rest state, m/s.
     pub takeoff_velocity_std_m_s: f64,
     /// Prior standard deviation of the dead reckoning's world acceleration error, m/s².
@@ -172,6 +180,7 @@ impl Default for BootstrapConfig {
             fill_depthless_below_points: 1500,
             fill_max_baseline_ratio: 0.03,
             refine_takeoff_passes: 2,
+            takeoff_lag_frames: 0,
             takeoff_velocity_std_m_s: 0.01,
             takeoff_accel_std_m_s2: 0.05,
             takeoff_position_std_m: 0.005,
@@ -266,6 +275,14 @@ pub struct OdometryStats {
     pub keyframe_bundle_s: Vec<f64>,
     /// Median relative inverse-depth change of each in-flight keyframe adjustment.
     pub keyframe_bundle_depth_changes: Vec<f64>,
+    /// Take-off refinements and keyframe adjustments not started: their thread was still busy
+    /// (real time).
+    pub refinements_dropped: usize,
+    /// Of those started, the ones whose outcome was not used: superseded by a newer one, or their
+    /// keyframe (first map) no longer tracked (built) when they came back.
+    pub refinements_discarded: usize,
+    /// Frames tracked again against an adjusted keyframe that came back after them.
+    pub catch_up_frames: usize,
     pub jobs_dropped: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
@@ -275,6 +292,37 @@ pub struct OdometryStats {
     pub vignette_saturated_px: u64,
 }
 
+/// At most this many frames are tracked again when a keyframe adjustment comes back late (more:
+/// the current state is moved by the correction instead).
+const MAX_CATCH_UP_FRAMES: usize = 30;
+
+/// A job sent to the refinement thread, awaited.
+struct PendingRefinement {
+    seq: u64,
+    /// Frame number at which it was sent.
+    frame_number: u64,
+    kind: PendingKind,
+}
+
+enum PendingKind {
+    Keyframe {
+        /// Tracked state of the last view handed over.
+        tracked_last: FrameState,
+        /// The keyframe as the mapper built it, installed if the adjustment fails.
+        unadjusted: Box<Keyframe>,
+        /// Its snapshot.
+        snapshot: MapSnapshot,
+    },
+    Takeoff {
+        /// The mapper's id of the first map being refined.
+        keyframe_id: u32,
+        /// Take-off frames handed over.
+        frames_sent: usize,
+        /// The first map's snapshot, installed as it is if the pass fails.
+        snapshot: MapSnapshot,
+    },
+}
+
 /// The odometry of one camera + IMU rig.
 pub struct Odometry {
     cfg: OdometryConfig,
@@ -282,6 +330,15 @@ pub struct Odometry {
     tracker: Tracker,
     detector: StaticDetector,
     mapping: Option<MappingThread>,
+    /// The thread of the take-off refinement and the in-flight keyframe adjustment.
+    refiner: Option<RefinementThread>,
+    /// The refinement under way, if any.
+    refining: Option<PendingRefinement>,
+    /// Frames tracked while a keyframe adjustment is under way: tracked again once it is back.
+    catch_up: Vec<(TimeNs, Arc<Image<u8>>)>,
+    refine_seq: u64,
+    /// Jobs sent to the refinement thread whose outcome has not been taken (0 or 1).
+    refine_outstanding: usize,
     imu: VecDeque<ImuSample>,
     phase: Phase,
     last_t: Option<TimeNs>,
@@ -322,8 +379,8 @@ pub struct Odometry {
     takeoff: Option<TakeoffRecord>,
     /// The keyframe started in flight and the frames tracked since, until it is installed.
     kf_record: Option<KeyframeRecord>,
-    /// The tracking keyframe's depths come from the keyframe adjustment: the mapper's refreshes
-    /// of it are not installed.
+    /// The tracking keyframe's depths come from the keyframe adjustment (or will, once it is
+    /// back): the mapper's refreshes of it are not installed.
     tracking_kf_adjusted: bool,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
@@ -365,10 +422,26 @@ impl Odometry {
             rig.camera,
             cfg.bootstrap.queue_len.max(1),
         );
+        let refiner = ((cfg.keyframe_bundle.enabled || cfg.bootstrap.refine_takeoff_passes > 0)
+            && cfg.tracking.use_vision)
+            .then(|| {
+                RefinementThread::spawn(RefineSettings {
+                    camera: rig.camera,
+                    t_body_cam: rig.t_body_cam,
+                    noise: rig.noise,
+                    tracking: cfg.tracking.clone(),
+                    keyframe_bundle: cfg.keyframe_bundle.clone(),
+                })
+            });
         Odometry {
             tracker,
             detector,
             mapping: Some(mapping),
+            refiner,
+            refining: None,
+            catch_up: Vec::new(),
+            refine_seq: 0,
+            refine_outstanding: 0,
             imu: VecDeque::with_capacity(4096),
             phase: Phase::WaitingForStart,
             last_t: None,
@@ -453,6 +526,7 @@ impl Odometry {
         }
         self.frame_number += 1;
         self.collect_snapshots();
+        self.collect_refinement();
         let image = Arc::new(image);
         let static_now = self.detector.is_static();
         let mut result = match self.phase {
@@ -625,6 +699,12 @@ impl Odometry {
                 }
             }
         }
+        if self.phase == Phase::Tracking
+            && self.adjusting_keyframe()
+            && self.catch_up.len() < MAX_CATCH_UP_FRAMES
+        {
+            self.catch_up.push((t, image.clone()));
+        }
         if self.phase == Phase::Tracking && result.flag.is_none() {
             let frame = MapFrame {
                 t_world_cam: self.tracker.t_world_cam(),
@@ -644,6 +724,9 @@ impl Odometry {
 
     /// Stops the mapping thread and returns what it built.
     pub fn finish(mut self) -> (OdometryStats, MappingOutput) {
+        if let Some(r) = self.refiner.take() {
+            r.finish();
+        }
         let out = self
             .mapping
             .take()
@@ -693,117 +776,367 @@ impl Odometry {
         self.tracker.track(t, image, &pre)
     }
 
-    /// One refinement pass of the take-off whose first map `kf` (mapper keyframe `id`) is ready:
-    /// re-poses and rescales its views and starts the first map again from them. Returns whether
-    /// it did (the map is then not installed yet).
-    fn refine_takeoff_with(&mut self, kf: &Keyframe, id: u32) -> bool {
+    /// Sends one refinement pass of the take-off whose first map `kf` (snapshot `s`) is ready to
+    /// the refinement thread; it will re-pose and rescale the views and the first map is started
+    /// again from them. Returns whether it was sent (the map is then not installed yet).
+    fn send_takeoff(&mut self, kf: &Keyframe, s: &MapSnapshot) -> bool {
         let b = &self.cfg.bootstrap;
-        let Some(tk) = self.takeoff.as_ref() else {
+        let Some(tk) = self.takeoff.as_ref().filter(|_| self.refiner.is_some()) else {
             return false;
         };
-        if tk.keyframe_id != id
-            || tk.passes >= b.refine_takeoff_passes
-            || !self.cfg.tracking.use_vision
-        {
-            return false; // done, or the images are not to be used (`--no-vision`)
+        if tk.keyframe_id != s.keyframe_id || tk.passes >= b.refine_takeoff_passes {
+            return false; // done
         }
-        let rig = TakeoffRig {
-            tracking: &self.cfg.tracking,
-            camera: &self.rig.camera,
-            t_body_cam: self.rig.t_body_cam,
-            noise: self.rig.noise,
+        let imu = imu_between(self.imu.make_contiguous(), tk.rest.nav.t, None);
+        self.refine_seq += 1;
+        let job = RefineJob::Takeoff(Box::new(TakeoffJob {
+            seq: self.refine_seq,
+            rec: tk.clone(),
+            kf: kf.clone(),
+            imu,
+            bundle: (b.takeoff_refinement == TakeoffRefinement::BundleAdjustment).then(|| {
+                BundleConfig {
+                    iterations_per_level: b.takeoff_bundle_iterations,
+                    start_velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                    accel_bias_std_m_s2: b.takeoff_accel_std_m_s2,
+                    smoothness_rel_std: b.takeoff_bundle_smoothness_rel_std,
+                    ..BundleConfig::default()
+                }
+            }),
             prior: AlignmentPrior {
                 velocity_std_m_s: b.takeoff_velocity_std_m_s,
                 accel_std_m_s2: b.takeoff_accel_std_m_s2,
                 position_std_m: b.takeoff_position_std_m,
             },
             max_scale_correction: b.takeoff_max_scale_correction,
-            imu_noise_factor: b.takeoff_imu_noise_factor,
             min_significance_sigmas: b.takeoff_min_significance_sigmas,
+            imu_noise_factor: b.takeoff_imu_noise_factor,
+        }));
+        let kind = PendingKind::Takeoff {
+            keyframe_id: s.keyframe_id,
+            frames_sent: tk.frames.len(),
+            snapshot: s.clone(),
         };
-        let started = std::time::Instant::now();
-        let imu = self.imu.make_contiguous();
-        let refined = match b.takeoff_refinement {
-            TakeoffRefinement::Alignment => refine_takeoff(tk, kf.clone(), imu, &rig),
-            TakeoffRefinement::BundleAdjustment => {
-                let cfg = BundleConfig {
-                    iterations_per_level: b.takeoff_bundle_iterations,
-                    start_velocity_std_m_s: b.takeoff_velocity_std_m_s,
-                    accel_bias_std_m_s2: b.takeoff_accel_std_m_s2,
-                    smoothness_rel_std: b.takeoff_bundle_smoothness_rel_std,
-                    ..BundleConfig::default()
-                };
-                bundle_adjust_takeoff(tk, kf, imu, &rig, &cfg)
-            }
+        self.send_refinement(job, kind)
+    }
+
+    /// Whether new keyframe `id`, ready to be installed, is to be adjusted first
+    /// (`[keyframe_bundle]`): enough frames were tracked since it was started.
+    fn keyframe_adjustable(&self, id: u32) -> bool {
+        self.cfg.keyframe_bundle.enabled
+            && self.refiner.is_some()
+            && self.kf_record.as_ref().is_some_and(|r| {
+                r.id == id && r.views.len() >= self.cfg.keyframe_bundle.min_views.max(1)
+            })
+    }
+
+    /// Hands new keyframe `kf` (image pyramid `pyramid`, snapshot `s`) to the in-flight keyframe
+    /// adjustment with the frames tracked since it was started; it is installed for tracking when
+    /// the adjustment is back. `Err(kf)` if it was not sent (thread busy in real time).
+    fn send_keyframe_adjustment(
+        &mut self,
+        kf: Keyframe,
+        pyramid: Pyramid,
+        s: &MapSnapshot,
+    ) -> Result<(), Box<Keyframe>> {
+        let Some(rec) = self.kf_record.take() else {
+            return Err(Box::new(kf));
         };
-        let Some(r) = refined else {
+        let Some(tracked_last) = rec.views.last().map(|v| v.1) else {
+            return Err(Box::new(kf));
+        };
+        let imu = imu_between(
+            self.imu.make_contiguous(),
+            rec.start.nav.t,
+            Some(tracked_last.nav.t),
+        );
+        self.refine_seq += 1;
+        let job = RefineJob::Keyframe(Box::new(KeyframeJob {
+            seq: self.refine_seq,
+            rec,
+            kf: kf.clone(),
+            pyramid,
+            imu,
+        }));
+        let kind = PendingKind::Keyframe {
+            tracked_last,
+            unadjusted: Box::new(kf.clone()),
+            snapshot: s.clone(),
+        };
+        if self.send_refinement(job, kind) {
+            Ok(())
+        } else {
+            Err(Box::new(kf))
+        }
+    }
+
+    /// Queues `job` (offline waiting for room, real time only if there is room) and awaits it.
+    /// At most one job is out at a time (so neither queue can fill up and block): an earlier one
+    /// still out is superseded — offline its outcome is awaited and dropped, in real time the new
+    /// job is dropped while the thread is busy.
+    fn send_refinement(&mut self, job: RefineJob, kind: PendingKind) -> bool {
+        let Some(refiner) = &self.refiner else {
             return false;
+        };
+        while self.refine_outstanding > 0 {
+            let o = if self.cfg.realtime {
+                refiner.try_recv()
+            } else {
+                refiner.recv()
+            };
+            if o.is_none() {
+                break;
+            }
+            self.refine_outstanding -= 1;
+        }
+        let sent = self.refine_outstanding == 0
+            && if self.cfg.realtime {
+                refiner.try_send(job)
+            } else {
+                refiner.send(job)
+            };
+        if !sent {
+            self.stats.refinements_dropped += 1;
+            return false;
+        }
+        let seq = self.refine_seq;
+        self.refine_outstanding = 1;
+        if self.refining.is_some() {
+            self.stats.refinements_discarded += 1; // superseded before it came back
+        }
+        self.catch_up.clear();
+        self.refining = Some(PendingRefinement {
+            seq,
+            frame_number: self.frame_number,
+            kind,
+        });
+        true
+    }
+
+    /// Takes the awaited refinement's outcome a fixed number of frames after it was sent
+    /// (`[keyframe_bundle] lag_frames`, `[bootstrap] takeoff_lag_frames`): offline waiting for it,
+    /// in real time if it has arrived by then.
+    fn collect_refinement(&mut self) {
+        let Some(refiner) = &self.refiner else {
+            return;
+        };
+        let Some(p) = &self.refining else {
+            // Real time: an outcome of a superseded job is taken off the queue.
+            while self.refine_outstanding > 0 && self.cfg.realtime && refiner.try_recv().is_some() {
+                self.refine_outstanding -= 1;
+            }
+            return;
+        };
+        let wait = !self.cfg.realtime;
+        let lag = match p.kind {
+            PendingKind::Keyframe { .. } => self.cfg.keyframe_bundle.lag_frames,
+            PendingKind::Takeoff { .. } => self.cfg.bootstrap.takeoff_lag_frames,
+        };
+        if self.frame_number < p.frame_number + lag {
+            return; // not before its lag, however early it is ready
+        }
+        let want = p.seq;
+        let mut outcome = None;
+        loop {
+            let o = if wait {
+                refiner.recv()
+            } else {
+                refiner.try_recv()
+            };
+            let Some(o) = o else { break };
+            self.refine_outstanding = self.refine_outstanding.saturating_sub(1);
+            if o.seq == want {
+                outcome = Some(o);
+                break;
+            }
+            // (An older job's, superseded meanwhile: counted when it was.)
+        }
+        let Some(o) = outcome else {
+            // Real time, not back yet: if the keyframe tracked meanwhile is slipping away, the new
+            // one is installed as the mapper built it (its adjustment is dropped).
+            if self.phase == Phase::Tracking
+                && self.last_inlier_ratio < self.cfg.bootstrap.urgent_inlier_ratio
+                && let Some(PendingRefinement {
+                    kind:
+                        PendingKind::Keyframe {
+                            unadjusted,
+                            snapshot,
+                            ..
+                        },
+                    ..
+                }) = self
+                    .refining
+                    .take_if(|p| matches!(p.kind, PendingKind::Keyframe { .. }))
+            {
+                self.catch_up.clear();
+                self.stats.refinements_discarded += 1;
+                if self.pending_kf == Some(snapshot.keyframe_id) {
+                    self.install_keyframe(*unadjusted, &snapshot, true, false, false);
+                }
+            }
+            return;
+        };
+        let Some(p) = self.refining.take() else {
+            return;
+        };
+        let catch_up = std::mem::take(&mut self.catch_up);
+        match (o.result, p.kind) {
+            (
+                RefineResult::Keyframe { adjusted, .. },
+                PendingKind::Keyframe {
+                    tracked_last,
+                    unadjusted,
+                    snapshot,
+                },
+            ) => self.apply_keyframe_adjustment(
+                adjusted,
+                *unadjusted,
+                &snapshot,
+                &tracked_last,
+                &catch_up,
+                o.time_s,
+            ),
+            (
+                RefineResult::Takeoff(refined),
+                PendingKind::Takeoff {
+                    keyframe_id,
+                    frames_sent,
+                    snapshot,
+                },
+            ) => self.apply_takeoff(refined, keyframe_id, frames_sent, &snapshot, o.time_s),
+            _ => {} // (a job and its outcome are always of the same kind)
+        }
+    }
+
+    /// The adjustment of the new keyframe of `snapshot` is back: the keyframe is installed (as
+    /// the mapper built it if the adjustment failed) and tracking continues from the last view's
+    /// adjusted state, the frames tracked since against the old keyframe (`catch_up`) tracked again
+    /// against the new one (too many of them: the current state is moved by the last view's
+    /// correction instead).
+    fn apply_keyframe_adjustment(
+        &mut self,
+        adjusted: Option<AdjustedKeyframe>,
+        unadjusted: Keyframe,
+        snapshot: &MapSnapshot,
+        tracked_last: &FrameState,
+        catch_up: &[(TimeNs, Arc<Image<u8>>)],
+        time_s: f64,
+    ) {
+        if !(self.phase == Phase::Tracking && self.pending_kf == Some(snapshot.keyframe_id)) {
+            self.stats.refinements_discarded += 1; // lost meanwhile
+            return;
+        }
+        let Some(a) = adjusted.filter(|a| a.last_view.is_finite()) else {
+            self.install_keyframe(unadjusted, snapshot, true, false, false);
+            return;
+        };
+        let kf_pose = unadjusted.t_world_cam;
+        self.install_keyframe(a.keyframe, snapshot, true, false, true);
+        let cov = *self.tracker.covariance();
+        if catch_up.len() < MAX_CATCH_UP_FRAMES {
+            let state_now = *self.tracker.state();
+            let last_t = self.last_t;
+            self.tracker.reset_state(a.last_view, cov);
+            self.last_t = Some(a.last_view.nav.t);
+            let mut poses = Vec::with_capacity(catch_up.len());
+            for (t, image) in catch_up {
+                self.track(*t, image);
+                poses.push((*t, self.tracker.t_world_cam()));
+            }
+            if self.tracker.state().is_finite() {
+                // The frames kept for the next keyframe get their new poses.
+                for h in self.history.iter_mut() {
+                    if let Some((_, p)) = poses.iter().find(|(t, _)| *t == h.t) {
+                        h.t_world_cam = *p;
+                    }
+                }
+            } else {
+                self.tracker.reset_state(state_now, cov);
+                self.last_t = last_t;
+            }
+            self.stats.catch_up_frames += catch_up.len();
+        } else {
+            let x = carry_correction(
+                self.tracker.state(),
+                tracked_last,
+                &a.last_view,
+                &kf_pose,
+                &kf_pose,
+            );
+            if x.is_finite() {
+                self.tracker.reset_state(x, cov);
+            }
+        }
+        self.stats.keyframe_bundle_s.push(time_s);
+        self.stats
+            .keyframe_bundle_depth_changes
+            .push(a.median_inv_depth_change);
+    }
+
+    /// A take-off refinement pass is back: the first map is started again from the refined views
+    /// (and the frames dead-reckoned since, re-predicted from the refined state); a failed pass
+    /// installs the first map as it was.
+    fn apply_takeoff(
+        &mut self,
+        refined: Option<RefinedTakeoff>,
+        keyframe_id: u32,
+        frames_sent: usize,
+        snapshot: &MapSnapshot,
+        time_s: f64,
+    ) {
+        if self.phase != Phase::Initializing
+            || self.takeoff.as_ref().map(|t| t.keyframe_id) != Some(keyframe_id)
+        {
+            self.stats.refinements_discarded += 1; // the first map was restarted meanwhile
+            return;
+        }
+        let Some(r) = refined else {
+            if let Some(tk) = self.takeoff.as_mut() {
+                tk.passes = u32::MAX; // no further pass: install it now
+            }
+            self.apply_snapshot(snapshot);
+            return;
         };
         let Some(mut tk) = self.takeoff.take() else {
-            return false;
+            return;
         };
         // The tracker continues from the refined state on the IMU until the new map is ready.
+        let mut x = r.last;
+        let mut views = r.views;
+        for f in tk.frames.iter().skip(frames_sent) {
+            x = self.dead_reckon(&x, f.t);
+            views.push(MapFrame {
+                t_world_cam: pose_of(&x) * self.rig.t_body_cam,
+                ..f.clone()
+            });
+        }
+        let t_now = self.tracker.state().nav.t;
+        if x.nav.t < t_now {
+            x = self.dead_reckon(&x, t_now);
+        }
         let cov = *self.tracker.covariance();
-        self.tracker.reset_state(r.last, cov);
+        self.tracker.reset_state(x, cov);
         let mut x0 = r.rest;
         x0.nav.t = tk.keyframe.t;
         self.window.reset(self.next_kf_id, x0, &tk.rest_cov);
         tk.rest = r.rest;
         tk.keyframe_id = self.next_kf_id;
         tk.passes += 1;
-        tk.frames = r.views.clone();
-        self.start_keyframe(tk.keyframe.clone(), r.views, false);
+        tk.frames = views.clone();
+        self.start_keyframe(tk.keyframe.clone(), views, false);
         self.stats.takeoff_scales.push(r.scale);
-        self.stats
-            .takeoff_refinement_s
-            .push(started.elapsed().as_secs_f64());
+        self.stats.takeoff_refinement_s.push(time_s);
         self.takeoff = Some(tk);
-        true
     }
 
-    /// The in-flight keyframe adjustment (`[keyframe_bundle]`) of keyframe `kf` about to be
-    /// installed: its depths and the states of the frames tracked since are optimised jointly
-    /// with the IMU; the tracker continues from the adjusted state of the last of them. Returns
-    /// the keyframe with the adjusted depths, `None` if it was not adjusted.
-    fn adjust_keyframe(&mut self, kf: &Keyframe, pyr: &Pyramid) -> Option<Keyframe> {
-        let rec = self.kf_record.take()?;
-        if rec.id != kf.id || !self.cfg.tracking.use_vision {
-            return None;
+    /// `x` predicted by the IMU to `t`, as the tracker does without a map.
+    fn dead_reckon(&mut self, x: &FrameState, t: TimeNs) -> FrameState {
+        let mut pre = Preintegration::new(x.nav.t, x.bias);
+        pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
+        FrameState {
+            nav: pre.predict(&x.nav, &x.bias),
+            bias: x.bias,
         }
-        let started = std::time::Instant::now();
-        let imu = self.imu.make_contiguous();
-        let a = bundle_adjust_keyframe(
-            &rec,
-            kf,
-            pyr,
-            imu,
-            self.rig.t_body_cam,
-            self.rig.noise,
-            self.cfg.tracking.imu_noise_scale,
-            self.cfg.tracking.gradient_weight_gray_px,
-            &self.cfg.keyframe_bundle,
-        )?;
-        let last = *a.views.last()?;
-        if last.nav.t == self.tracker.state().nav.t {
-            let cov = *self.tracker.covariance();
-            self.tracker.reset_state(last, cov);
-        }
-        let out = Keyframe::new(
-            kf.id,
-            kf.t,
-            pyr,
-            &self.rig.camera,
-            kf.t_world_cam,
-            &a.points,
-            &self.cfg.tracking,
-        );
-        self.stats
-            .keyframe_bundle_s
-            .push(started.elapsed().as_secs_f64());
-        self.stats
-            .keyframe_bundle_depth_changes
-            .push(a.median_inv_depth_change);
-        Some(out)
     }
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
@@ -1059,6 +1392,13 @@ impl Odometry {
         });
     }
 
+    /// A keyframe adjustment is under way.
+    fn adjusting_keyframe(&self) -> bool {
+        self.refining
+            .as_ref()
+            .is_some_and(|p| matches!(p.kind, PendingKind::Keyframe { .. }))
+    }
+
     fn observe(&mut self, frame: MapFrame) {
         let frame = MapFrame {
             t_world_cam: self.mapper_from_world * frame.t_world_cam,
@@ -1109,6 +1449,16 @@ impl Odometry {
         let is_refresh = self.pending_kf.is_none() && self.tracking_kf == Some(s.keyframe_id);
         if !(is_new || is_refresh) {
             return; // a keyframe that has been superseded already, or left for a stored one
+        }
+        if self
+            .refining
+            .as_ref()
+            .is_some_and(|p| matches!(p.kind, PendingKind::Takeoff { .. }))
+            || (is_new && self.adjusting_keyframe())
+        {
+            // The first map is waiting for its take-off refinement, the new keyframe for its
+            // adjustment.
+            return;
         }
         let n = s.map.points.len();
         // A keyframe whose map covers little of its image (started in a turn on the spot, where
@@ -1197,7 +1547,7 @@ impl Odometry {
             }
             None => pyramid(),
         };
-        let mut kf = Keyframe::new(
+        let kf = Keyframe::new(
             s.keyframe_id,
             s.keyframe_t,
             &pyr,
@@ -1206,18 +1556,35 @@ impl Odometry {
             &pts,
             &self.cfg.tracking,
         );
-        let mut adjusted = false;
-        if self.phase == Phase::Tracking
+        if self.phase == Phase::Initializing && self.send_takeoff(&kf, s) {
+            return; // the first map will be triangulated again from the refined take-off
+        }
+        let kf = if self.phase == Phase::Tracking
             && is_new
             && !filled
-            && let Some(k) = self.adjust_keyframe(&kf, &pyr)
+            && self.keyframe_adjustable(s.keyframe_id)
         {
-            kf = k;
-            adjusted = true;
-        }
-        if self.phase == Phase::Initializing && self.refine_takeoff_with(&kf, s.keyframe_id) {
-            return; // the first map is being triangulated again from the refined take-off
-        }
+            match self.send_keyframe_adjustment(kf, pyr, s) {
+                Ok(()) => return, // installed when the adjustment is back
+                Err(kf) => *kf,
+            }
+        } else {
+            kf
+        };
+        self.install_keyframe(kf, s, is_new, filled, false);
+    }
+
+    /// Makes `kf` (of snapshot `s`) the keyframe tracked against: a new one (`is_new`) or a refresh
+    /// of the current one; `filled` with depthless pixels, `adjusted` by the keyframe adjustment.
+    fn install_keyframe(
+        &mut self,
+        kf: Keyframe,
+        s: &MapSnapshot,
+        is_new: bool,
+        filled: bool,
+        adjusted: bool,
+    ) {
+        let n = s.map.points.len();
         self.takeoff = None;
         let kf_median_depth_m = kf.median_depth_m;
         // A refresh of the same keyframe keeps the brightness estimate.
@@ -1250,6 +1617,16 @@ impl Odometry {
             }
         }
     }
+}
+
+/// The samples of `imu` from before `t0` to after `t1` (all after `t0` if `None`), with one sample
+/// of margin each side for the interpolation at the ends.
+fn imu_between(imu: &[ImuSample], t0: TimeNs, t1: Option<TimeNs>) -> Vec<ImuSample> {
+    let i0 = imu.partition_point(|s| s.t <= t0).saturating_sub(2);
+    let i1 = t1.map_or(imu.len(), |t1| {
+        (imu.partition_point(|s| s.t <= t1) + 2).min(imu.len())
+    });
+    imu[i0..i1.max(i0)].to_vec()
 }
 
 /// The keyframe's level-0 gradient pixels (as the tracker selects them) in cells of its image

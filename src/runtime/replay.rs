@@ -164,6 +164,12 @@ pub struct ReplayOutput {
     /// adjustment (`[keyframe_bundle]`).
     pub keyframe_bundle_s: Vec<f64>,
     pub keyframe_bundle_depth_changes: Vec<f64>,
+    /// Take-off refinements and keyframe adjustments not started (their thread busy, real time)
+    /// and discarded (superseded, or their keyframe no longer tracked when they came back).
+    pub refinements_dropped: usize,
+    pub refinements_discarded: usize,
+    /// Frames tracked again against an adjusted keyframe that came back after them.
+    pub catch_up_frames: usize,
     /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
     pub vignette_saturated_px: Option<u64>,
 }
@@ -313,6 +319,9 @@ fn replay_full(
     out.window_solve_s = stats.window_solve_s;
     out.keyframe_bundle_s = stats.keyframe_bundle_s;
     out.keyframe_bundle_depth_changes = stats.keyframe_bundle_depth_changes;
+    out.refinements_dropped = stats.refinements_dropped;
+    out.refinements_discarded = stats.refinements_discarded;
+    out.catch_up_frames = stats.catch_up_frames;
     out.vignette_saturated_px = stats
         .vignette_corrected
         .then_some(stats.vignette_saturated_px);

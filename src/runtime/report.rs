@@ -70,13 +70,19 @@ pub struct ReplayReport {
     pub window_solves: usize,
     pub window_ms_p50: f64,
     pub window_ms_max: f64,
-    /// In-flight keyframe adjustments (`[keyframe_bundle]`, on the odometry thread when a new
-    /// keyframe is installed, not included in `tracking_ms`), their wall time, ms, and the median
-    /// over keyframes of each adjustment's median relative inverse-depth change, %.
+    /// In-flight keyframe adjustments applied (`[keyframe_bundle]`, on a thread of their own
+    /// started when a new keyframe is installed), their wall time, ms, and the median over
+    /// keyframes of each adjustment's median relative inverse-depth change, %; take-off
+    /// refinements and keyframe adjustments not started because their thread was busy (real
+    /// time) or not used (superseded, or back after their keyframe was left).
     pub keyframe_bundles: usize,
     pub keyframe_bundle_ms_p50: f64,
     pub keyframe_bundle_ms_max: f64,
     pub keyframe_bundle_depth_change_median_pct: f64,
+    pub refinements_dropped: usize,
+    pub refinements_discarded: usize,
+    /// Frames tracked again against an adjusted keyframe that came back after them.
+    pub keyframe_bundle_catch_up_frames: usize,
     /// Images divided by the dataset's vignetting (`cam0/vignette.yaml`), and the pixels that
     /// clipped at 255 doing so.
     pub vignette_corrected: bool,
@@ -200,6 +206,9 @@ impl ReplayReport {
             keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
             keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),
             keyframe_bundle_depth_change_median_pct: percentile(&kb_change, 50.0),
+            refinements_dropped: out.refinements_dropped,
+            refinements_discarded: out.refinements_discarded,
+            keyframe_bundle_catch_up_frames: out.catch_up_frames,
             vignette_corrected: out.vignette_saturated_px.is_some(),
             vignette_saturated_px: out.vignette_saturated_px.unwrap_or(0),
             semidense_points: out
@@ -381,11 +390,14 @@ impl ReplayReport {
             row(
                 "keyframe adjustments",
                 format!(
-                    "{}, ms p50/max {:.0} / {:.0}, depth change median {:.1} %",
+                    "{}, ms p50/max {:.0} / {:.0}, depth change median {:.1} %, dropped {}, \
+                     discarded {}",
                     self.keyframe_bundles,
                     self.keyframe_bundle_ms_p50,
                     self.keyframe_bundle_ms_max,
-                    self.keyframe_bundle_depth_change_median_pct
+                    self.keyframe_bundle_depth_change_median_pct,
+                    self.refinements_dropped,
+                    self.refinements_discarded
                 ),
             );
         }

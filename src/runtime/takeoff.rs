@@ -26,9 +26,9 @@
 //!   17 cm hop on the noise-free render), so tracker and mapper settle on a wrong map together;
 //!   corrections within `takeoff_min_significance_sigmas` of 1 are not applied.
 //!
-//! A pass runs on the odometry thread while the frames are IMU-only (0.8 s per pass on the demo's
-//! 12 views and 3000 points, 2 cores): in `--realtime` the frames meanwhile queue. It belongs in
-//! the mapping thread; not done yet.
+//! A pass (0.8 s on the demo's 12 views and 3000 points) runs on the refinement thread
+//! ([`super::refinement_worker`]) while the odometry keeps dead-reckoning the frames; when it is
+//! back, the frames dead-reckoned meanwhile are predicted again from its refined last state.
 
 use super::keyframe_bundle::{host_points, imu_chain};
 use super::mapping_worker::MapFrame;

@@ -1,0 +1,233 @@
+//! The thread of the two slow refinements the odometry makes of its own output: the take-off
+//! refinement of the first map ([`super::takeoff`], ~1 s a pass) and the in-flight keyframe
+//! adjustment ([`super::keyframe_bundle`], 100–300 ms a keyframe). Neither may hold up the
+//! odometry thread at frame rate.
+//!
+//! The odometry hands a job over and goes on: in flight it tracks the new keyframe with the
+//! mapper's depths, at take-off it keeps dead-reckoning. When the outcome comes back it swaps it in
+//! and carries its correction onto the frames processed meanwhile. Like the mapper, the thread is
+//! joined by bounded crossbeam channels: in real time a job is dropped when the thread is still
+//! busy with another and outcomes are drained with `try_recv`; offline the odometry waits for each
+//! outcome at a fixed frame lag, which keeps a replay deterministic.
+
+use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
+use super::takeoff::{
+    RefinedTakeoff, TakeoffRecord, TakeoffRig, bundle_adjust_takeoff, refine_takeoff,
+};
+use crate::camera::CameraModel;
+use crate::image::Pyramid;
+use crate::imu::scale_alignment::AlignmentPrior;
+use crate::imu::{FrameState, ImuNoise, ImuSample};
+use crate::smoother::photometric_bundle::BundleConfig;
+use crate::tracking::{Keyframe, TrackerConfig};
+use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
+use nalgebra::Isometry3;
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+/// Work for the refinement thread.
+pub enum RefineJob {
+    Keyframe(Box<KeyframeJob>),
+    Takeoff(Box<TakeoffJob>),
+}
+
+impl RefineJob {
+    fn seq(&self) -> u64 {
+        match self {
+            RefineJob::Keyframe(j) => j.seq,
+            RefineJob::Takeoff(j) => j.seq,
+        }
+    }
+}
+
+/// The in-flight adjustment of one keyframe.
+pub struct KeyframeJob {
+    pub seq: u64,
+    /// The keyframe's record: its state at the start and the views tracked since.
+    pub rec: KeyframeRecord,
+    /// The keyframe as installed for tracking (the mapper's depths).
+    pub kf: Keyframe,
+    /// Its image pyramid.
+    pub pyramid: Pyramid,
+    /// IMU samples from before the keyframe to after its last view.
+    pub imu: Vec<ImuSample>,
+}
+
+/// One refinement pass of the take-off.
+pub struct TakeoffJob {
+    pub seq: u64,
+    /// The take-off: rest state, first keyframe, frames since.
+    pub rec: TakeoffRecord,
+    /// The first map, ready to be tracked.
+    pub kf: Keyframe,
+    /// IMU samples from before the rest state to after the last frame.
+    pub imu: Vec<ImuSample>,
+    /// `Some`: the photometric–inertial bundle adjustment with these settings; `None`: tracking
+    /// again and aligning the scale.
+    pub bundle: Option<BundleConfig>,
+    pub prior: AlignmentPrior,
+    pub max_scale_correction: f64,
+    pub min_significance_sigmas: f64,
+    pub imu_noise_factor: f64,
+}
+
+/// The outcome of a [`RefineJob`], with its `seq` and wall time.
+pub struct RefineOutcome {
+    pub seq: u64,
+    pub time_s: f64,
+    pub result: RefineResult,
+}
+
+pub enum RefineResult {
+    /// The keyframe `keyframe_id` rebuilt with the adjusted depths, `None` if it was not adjusted
+    /// (too few views, an unsound solution).
+    Keyframe {
+        keyframe_id: u32,
+        adjusted: Option<AdjustedKeyframe>,
+    },
+    /// The refined take-off, `None` if the pass failed (the first map is then installed as is).
+    Takeoff(Option<RefinedTakeoff>),
+}
+
+/// An adjusted keyframe ready to be tracked against.
+pub struct AdjustedKeyframe {
+    pub keyframe: Keyframe,
+    /// Adjusted state of the last view.
+    pub last_view: FrameState,
+    /// Median relative change of the inverse depths.
+    pub median_inv_depth_change: f64,
+}
+
+/// The fixed inputs of every job.
+#[derive(Clone, Debug)]
+pub struct RefineSettings {
+    pub camera: CameraModel,
+    pub t_body_cam: Isometry3<f64>,
+    pub noise: ImuNoise,
+    pub tracking: TrackerConfig,
+    pub keyframe_bundle: KeyframeBundleConfig,
+}
+
+/// Handle of a running refinement thread.
+pub struct RefinementThread {
+    jobs: Sender<RefineJob>,
+    outcomes: Receiver<RefineOutcome>,
+    join: JoinHandle<()>,
+}
+
+impl RefinementThread {
+    /// Starts the thread. It works on one job and holds one more.
+    pub fn spawn(settings: RefineSettings) -> Self {
+        let (jtx, jrx) = bounded::<RefineJob>(1);
+        let (otx, orx) = bounded::<RefineOutcome>(2);
+        let join = std::thread::Builder::new()
+            .name("vidslam-refine".into())
+            .spawn(move || run(&settings, jrx, otx))
+            .expect("spawn the refinement thread");
+        RefinementThread {
+            jobs: jtx,
+            outcomes: orx,
+            join,
+        }
+    }
+
+    /// Queues `job` without waiting (real time); `false` if the queue is full.
+    pub fn try_send(&self, job: RefineJob) -> bool {
+        match self.jobs.try_send(job) {
+            Ok(()) => true,
+            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => false,
+        }
+    }
+
+    /// Queues `job`, waiting for room (offline).
+    pub fn send(&self, job: RefineJob) -> bool {
+        self.jobs.send(job).is_ok()
+    }
+
+    /// An outcome if one has arrived.
+    pub fn try_recv(&self) -> Option<RefineOutcome> {
+        self.outcomes.try_recv().ok()
+    }
+
+    /// Waits for the next outcome (`None` if the thread is gone).
+    pub fn recv(&self) -> Option<RefineOutcome> {
+        self.outcomes.recv().ok()
+    }
+
+    /// Closes the queue and waits for the thread.
+    pub fn finish(self) {
+        drop(self.jobs);
+        let rx = self.outcomes;
+        let drain = std::thread::spawn(move || while rx.recv().is_ok() {});
+        let _ = self.join.join();
+        let _ = drain.join();
+    }
+}
+
+fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOutcome>) {
+    for job in jobs.iter() {
+        let started = Instant::now();
+        let seq = job.seq();
+        let result = match &job {
+            RefineJob::Keyframe(j) => RefineResult::Keyframe {
+                keyframe_id: j.kf.id,
+                adjusted: adjust_keyframe(s, j),
+            },
+            RefineJob::Takeoff(j) => RefineResult::Takeoff(refine(s, j)),
+        };
+        let outcome = RefineOutcome {
+            seq,
+            time_s: started.elapsed().as_secs_f64(),
+            result,
+        };
+        if outcomes.send(outcome).is_err() {
+            break;
+        }
+    }
+}
+
+fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<AdjustedKeyframe> {
+    let a = bundle_adjust_keyframe(
+        &job.rec,
+        &job.kf,
+        &job.pyramid,
+        &job.imu,
+        s.t_body_cam,
+        s.noise,
+        s.tracking.imu_noise_scale,
+        s.tracking.gradient_weight_gray_px,
+        &s.keyframe_bundle,
+    )?;
+    let last_view = *a.views.last()?;
+    let keyframe = Keyframe::new(
+        job.kf.id,
+        job.kf.t,
+        &job.pyramid,
+        &s.camera,
+        job.kf.t_world_cam,
+        &a.points,
+        &s.tracking,
+    );
+    Some(AdjustedKeyframe {
+        keyframe,
+        last_view,
+        median_inv_depth_change: a.median_inv_depth_change,
+    })
+}
+
+fn refine(s: &RefineSettings, job: &TakeoffJob) -> Option<RefinedTakeoff> {
+    let rig = TakeoffRig {
+        tracking: &s.tracking,
+        camera: &s.camera,
+        t_body_cam: s.t_body_cam,
+        noise: s.noise,
+        prior: job.prior,
+        max_scale_correction: job.max_scale_correction,
+        imu_noise_factor: job.imu_noise_factor,
+        min_significance_sigmas: job.min_significance_sigmas,
+    };
+    match &job.bundle {
+        None => refine_takeoff(&job.rec, job.kf.clone(), &job.imu, &rig),
+        Some(cfg) => bundle_adjust_takeoff(&job.rec, &job.kf, &job.imu, &rig, cfg),
+    }
+}
