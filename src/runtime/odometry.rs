@@ -700,7 +700,7 @@ impl Odometry {
             }
         }
         if self.phase == Phase::Tracking
-            && self.adjusting_keyframe()
+            && self.adjusting_keyframe().is_some()
             && self.catch_up.len() < MAX_CATCH_UP_FRAMES
         {
             self.catch_up.push((t, image.clone()));
@@ -1392,11 +1392,12 @@ impl Odometry {
         });
     }
 
-    /// A keyframe adjustment is under way.
-    fn adjusting_keyframe(&self) -> bool {
-        self.refining
-            .as_ref()
-            .is_some_and(|p| matches!(p.kind, PendingKind::Keyframe { .. }))
+    /// The keyframe whose adjustment is under way, if any.
+    fn adjusting_keyframe(&self) -> Option<u32> {
+        match &self.refining.as_ref()?.kind {
+            PendingKind::Keyframe { snapshot, .. } => Some(snapshot.keyframe_id),
+            PendingKind::Takeoff { .. } => None,
+        }
     }
 
     fn observe(&mut self, frame: MapFrame) {
@@ -1454,7 +1455,7 @@ impl Odometry {
             .refining
             .as_ref()
             .is_some_and(|p| matches!(p.kind, PendingKind::Takeoff { .. }))
-            || (is_new && self.adjusting_keyframe())
+            || (is_new && self.adjusting_keyframe() == Some(s.keyframe_id))
         {
             // The first map is waiting for its take-off refinement, the new keyframe for its
             // adjustment.
