@@ -10,9 +10,10 @@
 //! the gauge, its velocity has a prior around the keyframe window's estimate), so the map that is
 //! installed for tracking agrees with the IMU's metric displacement and with every view's pixels.
 //!
-//! It runs on a thread of its own ([`super::refinement_worker`]) once the keyframe's map is
-//! installed (`[keyframe_bundle]`); [`carry_correction`] moves the state tracked meanwhile onto
-//! the adjusted one.
+//! It runs on a thread of its own ([`super::refinement_worker`]) once the keyframe's map is ready
+//! (`[keyframe_bundle]`); the keyframe is installed when it is back. The frames tracked meanwhile
+//! are tracked again against it ([`carry_correction`] moves the state instead when there are too
+//! many of them).
 
 use super::mapping_worker::MapFrame;
 use crate::image::Pyramid;
@@ -230,33 +231,25 @@ pub fn bundle_adjust_keyframe(
     })
 }
 
-/// The state `now` moved by the correction the adjustment made to a view: that view was tracked at
-/// `tracked` and adjusted to `adjusted`, with the keyframe's camera at `kf_then`; the keyframe is at
-/// `kf_now` (the keyframe window may have moved it since). The view's pose correction
+/// The state `now` moved by the correction the adjustment made to an earlier view: that view was
+/// tracked at `tracked` and adjusted to `adjusted`. The view's pose correction
 /// `C = P_adj · P_tracked⁻¹` is applied to the pose, its velocity change (rotated by `C`) and its
-/// bias changes are added. `now` is the view itself (same time, keyframe unmoved): `adjusted`.
+/// bias changes are added. `now` is the view itself (same time): `adjusted`.
 pub fn carry_correction(
     now: &FrameState,
     tracked: &FrameState,
     adjusted: &FrameState,
-    kf_then: &Isometry3<f64>,
-    kf_now: &Isometry3<f64>,
 ) -> FrameState {
-    if now.nav.t == tracked.nav.t && kf_then == kf_now {
+    if now.nav.t == tracked.nav.t {
         return *adjusted;
     }
-    // The keyframe's move since, in the world: `D = K_now · K_then⁻¹`.
-    let d = kf_now * kf_then.inverse();
     let c = pose_of(adjusted) * pose_of(tracked).inverse();
-    let c_now = d * c * d.inverse();
-    let p = c_now * pose_of(now);
-    let r_d = d.rotation;
-    let v_then = r_d.inverse() * now.nav.v_world_m_s;
-    let v = r_d * (adjusted.nav.v_world_m_s + c.rotation * (v_then - tracked.nav.v_world_m_s));
+    let p = c * pose_of(now);
     let mut x = *now;
     x.nav.r_world_body = p.rotation;
     x.nav.p_world_m = p.translation.vector;
-    x.nav.v_world_m_s = v;
+    x.nav.v_world_m_s =
+        adjusted.nav.v_world_m_s + c.rotation * (now.nav.v_world_m_s - tracked.nav.v_world_m_s);
     x.bias.gyro_rad_s += adjusted.bias.gyro_rad_s - tracked.bias.gyro_rad_s;
     x.bias.accel_m_s2 += adjusted.bias.accel_m_s2 - tracked.bias.accel_m_s2;
     x
@@ -284,13 +277,6 @@ mod tests {
         }
     }
 
-    fn kf(angle_rad: f64, x_m: f64) -> Isometry3<f64> {
-        Isometry3::from_parts(
-            Translation3::new(x_m, 0.3, 1.0),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, angle_rad)),
-        )
-    }
-
     #[test]
     fn the_view_itself_becomes_the_adjusted_state() {
         let tracked = state(
@@ -307,11 +293,7 @@ mod tests {
             [0.52, 0.01, -0.1],
             0.03,
         );
-        let k = kf(0.2, 1.0);
-        assert_eq!(
-            carry_correction(&tracked, &tracked, &adjusted, &k, &k),
-            adjusted
-        );
+        assert_eq!(carry_correction(&tracked, &tracked, &adjusted), adjusted);
     }
 
     #[test]
@@ -342,36 +324,17 @@ mod tests {
         now.nav.p_world_m = p_now.translation.vector;
         now.nav.v_world_m_s = Vector3::new(0.6, 0.05, -0.1);
         now.bias.accel_m_s2.x = 0.015;
-        // Whatever the keyframe window did to the keyframe meanwhile (moved both keyframe and
-        // state by the same world transform W), the result is W applied to the unmoved answer.
-        let k0 = kf(0.2, 1.0);
-        let w = Isometry3::from_parts(
-            Translation3::new(0.02, -0.04, 0.01),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.01, -0.02, 0.05)),
-        );
-        let unmoved = carry_correction(&now, &tracked, &adjusted, &k0, &k0);
-        // Unmoved: the adjusted view followed by the same body motion.
+        let x = carry_correction(&now, &tracked, &adjusted);
+        // The adjusted view followed by the same body motion.
         let expect = pose_of(&adjusted) * m;
-        let got = pose_of(&unmoved);
+        let got = pose_of(&x);
         assert!((got.translation.vector - expect.translation.vector).norm() < 1e-12);
         assert!(got.rotation.angle_to(&expect.rotation) < 1e-12);
         let c = pose_of(&adjusted) * pose_of(&tracked).inverse();
         let v_expect =
             adjusted.nav.v_world_m_s + c.rotation * (now.nav.v_world_m_s - tracked.nav.v_world_m_s);
-        assert!((unmoved.nav.v_world_m_s - v_expect).norm() < 1e-12);
-        assert!((unmoved.bias.accel_m_s2.x - (0.015 + 0.02)).abs() < 1e-12);
-        assert_eq!(unmoved.nav.t, TimeNs(200));
-
-        let mut now_w = now;
-        let p = w * pose_of(&now);
-        now_w.nav.r_world_body = p.rotation;
-        now_w.nav.p_world_m = p.translation.vector;
-        now_w.nav.v_world_m_s = w.rotation * now.nav.v_world_m_s;
-        let moved = carry_correction(&now_w, &tracked, &adjusted, &k0, &(w * k0));
-        let expect = w * pose_of(&unmoved);
-        let got = pose_of(&moved);
-        assert!((got.translation.vector - expect.translation.vector).norm() < 1e-12);
-        assert!(got.rotation.angle_to(&expect.rotation) < 1e-12);
-        assert!((moved.nav.v_world_m_s - w.rotation * unmoved.nav.v_world_m_s).norm() < 1e-12);
+        assert!((x.nav.v_world_m_s - v_expect).norm() < 1e-12);
+        assert!((x.bias.accel_m_s2.x - (0.015 + 0.02)).abs() < 1e-12);
+        assert_eq!(x.nav.t, TimeNs(200));
     }
 }

@@ -37,10 +37,10 @@ use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, carry_correct
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
 use super::refinement_worker::{
-    AdjustedKeyframe, KeyframeJob, RefineJob, RefineResult, RefineSettings, RefinementThread,
+    KeyframeJob, ReadyKeyframe, RefineJob, RefineResult, RefineSettings, RefinementThread,
     TakeoffJob,
 };
-use super::takeoff::{RefinedTakeoff, TakeoffRecord};
+use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
 use crate::imu::scale_alignment::AlignmentPrior;
@@ -794,6 +794,20 @@ impl Odometry {
             rec: tk.clone(),
             kf: kf.clone(),
             imu,
+            rig: TakeoffRig {
+                tracking: self.cfg.tracking.clone(),
+                camera: self.rig.camera,
+                t_body_cam: self.rig.t_body_cam,
+                noise: self.rig.noise,
+                prior: AlignmentPrior {
+                    velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                    accel_std_m_s2: b.takeoff_accel_std_m_s2,
+                    position_std_m: b.takeoff_position_std_m,
+                },
+                max_scale_correction: b.takeoff_max_scale_correction,
+                min_significance_sigmas: b.takeoff_min_significance_sigmas,
+                imu_noise_factor: b.takeoff_imu_noise_factor,
+            },
             bundle: (b.takeoff_refinement == TakeoffRefinement::BundleAdjustment).then(|| {
                 BundleConfig {
                     iterations_per_level: b.takeoff_bundle_iterations,
@@ -803,14 +817,6 @@ impl Odometry {
                     ..BundleConfig::default()
                 }
             }),
-            prior: AlignmentPrior {
-                velocity_std_m_s: b.takeoff_velocity_std_m_s,
-                accel_std_m_s2: b.takeoff_accel_std_m_s2,
-                position_std_m: b.takeoff_position_std_m,
-            },
-            max_scale_correction: b.takeoff_max_scale_correction,
-            min_significance_sigmas: b.takeoff_min_significance_sigmas,
-            imu_noise_factor: b.takeoff_imu_noise_factor,
         }));
         let kind = PendingKind::Takeoff {
             keyframe_id: s.keyframe_id,
@@ -982,7 +988,7 @@ impl Odometry {
         let catch_up = std::mem::take(&mut self.catch_up);
         match (o.result, p.kind) {
             (
-                RefineResult::Keyframe { adjusted, .. },
+                RefineResult::Keyframe(adjusted),
                 PendingKind::Keyframe {
                     tracked_last,
                     unadjusted,
@@ -1015,7 +1021,7 @@ impl Odometry {
     /// correction instead).
     fn apply_keyframe_adjustment(
         &mut self,
-        adjusted: Option<AdjustedKeyframe>,
+        adjusted: Option<ReadyKeyframe>,
         unadjusted: Keyframe,
         snapshot: &MapSnapshot,
         tracked_last: &FrameState,
@@ -1030,7 +1036,6 @@ impl Odometry {
             self.install_keyframe(unadjusted, snapshot, true, false, false);
             return;
         };
-        let kf_pose = unadjusted.t_world_cam;
         self.install_keyframe(a.keyframe, snapshot, true, false, true);
         let cov = *self.tracker.covariance();
         if catch_up.len() < MAX_CATCH_UP_FRAMES {
@@ -1056,13 +1061,7 @@ impl Odometry {
             }
             self.stats.catch_up_frames += catch_up.len();
         } else {
-            let x = carry_correction(
-                self.tracker.state(),
-                tracked_last,
-                &a.last_view,
-                &kf_pose,
-                &kf_pose,
-            );
+            let x = carry_correction(self.tracker.state(), tracked_last, &a.last_view);
             if x.is_finite() {
                 self.tracker.reset_state(x, cov);
             }
@@ -1132,7 +1131,7 @@ impl Odometry {
     /// `x` predicted by the IMU to `t`, as the tracker does without a map.
     fn dead_reckon(&mut self, x: &FrameState, t: TimeNs) -> FrameState {
         let mut pre = Preintegration::new(x.nav.t, x.bias);
-        pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
+        pre.integrate(self.imu.make_contiguous(), t, None); // (the mean only)
         FrameState {
             nav: pre.predict(&x.nav, &x.bias),
             bias: x.bias,

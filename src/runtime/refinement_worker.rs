@@ -3,9 +3,10 @@
 //! adjustment ([`super::keyframe_bundle`], 100–300 ms a keyframe). Neither may hold up the
 //! odometry thread at frame rate.
 //!
-//! The odometry hands a job over and goes on: in flight it tracks the new keyframe with the
-//! mapper's depths, at take-off it keeps dead-reckoning. When the outcome comes back it swaps it in
-//! and carries its correction onto the frames processed meanwhile. Like the mapper, the thread is
+//! The odometry hands a job over and goes on: in flight it keeps tracking the previous keyframe, at
+//! take-off it keeps dead-reckoning. When the outcome comes back it installs the adjusted keyframe
+//! (or starts the first map again from the refined take-off) and brings the frames processed
+//! meanwhile onto it. Like the mapper, the thread is
 //! joined by bounded crossbeam channels: in real time a job is dropped when the thread is still
 //! busy with another and outcomes are drained with `try_recv`; offline the odometry waits for each
 //! outcome at a fixed frame lag, which keeps a replay deterministic.
@@ -16,7 +17,6 @@ use super::takeoff::{
 };
 use crate::camera::CameraModel;
 use crate::image::Pyramid;
-use crate::imu::scale_alignment::AlignmentPrior;
 use crate::imu::{FrameState, ImuNoise, ImuSample};
 use crate::smoother::photometric_bundle::BundleConfig;
 use crate::tracking::{Keyframe, TrackerConfig};
@@ -62,13 +62,10 @@ pub struct TakeoffJob {
     pub kf: Keyframe,
     /// IMU samples from before the rest state to after the last frame.
     pub imu: Vec<ImuSample>,
+    pub rig: TakeoffRig,
     /// `Some`: the photometric–inertial bundle adjustment with these settings; `None`: tracking
     /// again and aligning the scale.
     pub bundle: Option<BundleConfig>,
-    pub prior: AlignmentPrior,
-    pub max_scale_correction: f64,
-    pub min_significance_sigmas: f64,
-    pub imu_noise_factor: f64,
 }
 
 /// The outcome of a [`RefineJob`], with its `seq` and wall time.
@@ -79,18 +76,15 @@ pub struct RefineOutcome {
 }
 
 pub enum RefineResult {
-    /// The keyframe `keyframe_id` rebuilt with the adjusted depths, `None` if it was not adjusted
-    /// (too few views, an unsound solution).
-    Keyframe {
-        keyframe_id: u32,
-        adjusted: Option<AdjustedKeyframe>,
-    },
+    /// The keyframe rebuilt with the adjusted depths, `None` if it was not adjusted (too few
+    /// views, an unsound solution).
+    Keyframe(Option<ReadyKeyframe>),
     /// The refined take-off, `None` if the pass failed (the first map is then installed as is).
     Takeoff(Option<RefinedTakeoff>),
 }
 
 /// An adjusted keyframe ready to be tracked against.
-pub struct AdjustedKeyframe {
+pub struct ReadyKeyframe {
     pub keyframe: Keyframe,
     /// Adjusted state of the last view.
     pub last_view: FrameState,
@@ -169,11 +163,8 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
         let started = Instant::now();
         let seq = job.seq();
         let result = match &job {
-            RefineJob::Keyframe(j) => RefineResult::Keyframe {
-                keyframe_id: j.kf.id,
-                adjusted: adjust_keyframe(s, j),
-            },
-            RefineJob::Takeoff(j) => RefineResult::Takeoff(refine(s, j)),
+            RefineJob::Keyframe(j) => RefineResult::Keyframe(adjust_keyframe(s, j)),
+            RefineJob::Takeoff(j) => RefineResult::Takeoff(refine(j)),
         };
         let outcome = RefineOutcome {
             seq,
@@ -186,7 +177,7 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
     }
 }
 
-fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<AdjustedKeyframe> {
+fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyframe> {
     let a = bundle_adjust_keyframe(
         &job.rec,
         &job.kf,
@@ -208,26 +199,16 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<AdjustedKeyf
         &a.points,
         &s.tracking,
     );
-    Some(AdjustedKeyframe {
+    Some(ReadyKeyframe {
         keyframe,
         last_view,
         median_inv_depth_change: a.median_inv_depth_change,
     })
 }
 
-fn refine(s: &RefineSettings, job: &TakeoffJob) -> Option<RefinedTakeoff> {
-    let rig = TakeoffRig {
-        tracking: &s.tracking,
-        camera: &s.camera,
-        t_body_cam: s.t_body_cam,
-        noise: s.noise,
-        prior: job.prior,
-        max_scale_correction: job.max_scale_correction,
-        imu_noise_factor: job.imu_noise_factor,
-        min_significance_sigmas: job.min_significance_sigmas,
-    };
+fn refine(job: &TakeoffJob) -> Option<RefinedTakeoff> {
     match &job.bundle {
-        None => refine_takeoff(&job.rec, job.kf.clone(), &job.imu, &rig),
-        Some(cfg) => bundle_adjust_takeoff(&job.rec, &job.kf, &job.imu, &rig, cfg),
+        None => refine_takeoff(&job.rec, job.kf.clone(), &job.imu, &job.rig),
+        Some(cfg) => bundle_adjust_takeoff(&job.rec, &job.kf, &job.imu, &job.rig, cfg),
     }
 }

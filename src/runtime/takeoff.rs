@@ -73,9 +73,10 @@ pub struct RefinedTakeoff {
 }
 
 /// The rig and settings a pass needs.
-pub struct TakeoffRig<'a> {
-    pub tracking: &'a TrackerConfig,
-    pub camera: &'a CameraModel,
+#[derive(Clone, Debug)]
+pub struct TakeoffRig {
+    pub tracking: TrackerConfig,
+    pub camera: CameraModel,
     pub t_body_cam: Isometry3<f64>,
     pub noise: ImuNoise,
     pub prior: AlignmentPrior,
@@ -116,7 +117,7 @@ pub fn refine_takeoff(
     tracking.imu_noise_scale *= rig.imu_noise_factor;
     let mut tracker = Tracker::new(
         tracking,
-        rig.camera,
+        &rig.camera,
         rig.t_body_cam,
         rig.noise,
         rest,
