@@ -333,6 +333,7 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     // 2.3 cm) — measured, listed in the README as open.
     let mut base = ReplayOptions::default();
     base.keyframe_bundle.enabled = false;
+    let base_zupt_max_speed_m_s = base.bootstrap.zupt_max_speed_m_s;
     let (with, e_with) = run(base.clone());
     // The previous behaviour: always the newest keyframe, no depthless pixels in the turn.
     let mut old = base;
@@ -366,6 +367,38 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
         with.frames.iter().all(|r| r.state.is_finite()),
         "a non-finite state"
     );
+    // Zero-velocity updates hold the 2 s idle after the landing (src/sim/flights.rs), and fire
+    // only where the vehicle is (nearly) at rest: after the take-off, every frame whose velocity is
+    // exactly zero has a true speed under the updates' bound (the end of the hover turn, where
+    // the turn has stopped and the descent barely begun, counts: 4 cm/s).
+    assert!(with.zero_velocity_updates > 0);
+    let gt = AslDataset::open(&dir)
+        .unwrap()
+        .ground_truth()
+        .unwrap()
+        .unwrap();
+    let took_off = with
+        .frames
+        .iter()
+        .position(|r| r.state.nav.v_world_m_s.norm() > 0.0)
+        .unwrap();
+    let stopped: Vec<_> = with.frames[took_off..]
+        .iter()
+        .filter(|r| r.state.nav.v_world_m_s.norm() == 0.0)
+        .collect();
+    assert_eq!(stopped.len(), with.zero_velocity_updates);
+    let bound = base_zupt_max_speed_m_s;
+    for r in stopped {
+        let truth = gt.nearest(r.t, 5_000_000).unwrap();
+        let speed_m_s = truth.v_world_m_s.unwrap().norm();
+        assert!(
+            speed_m_s < bound,
+            "zero velocity at {} s, true speed {speed_m_s} m/s",
+            r.t.to_secs_string()
+        );
+    }
+    let last = with.frames.last().unwrap();
+    assert_eq!(last.state.nav.v_world_m_s.norm(), 0.0, "not held at rest");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

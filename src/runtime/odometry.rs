@@ -146,6 +146,13 @@ pub struct BootstrapConfig {
     /// Each inverse depth is pulled toward its image neighbours' median with this relative
     /// standard deviation in the take-off bundle adjustment.
     pub takeoff_bundle_smoothness_rel_std: f64,
+    /// Zero-velocity update: while the IMU's static detector says the vehicle rests (landed,
+    /// idling on the pad) and the estimated speed is below this, the velocity is set to zero with
+    /// `zupt_velocity_std_m_s` (m/s; 0 = off). The speed bound keeps a constant-velocity cruise,
+    /// which the IMU cannot tell from rest, from being stopped.
+    pub zupt_max_speed_m_s: f64,
+    /// Standard deviation of the zero velocity, m/s.
+    pub zupt_velocity_std_m_s: f64,
 }
 
 /// How the take-off refinement re-poses the first map's views.
@@ -190,6 +197,8 @@ impl Default for BootstrapConfig {
             takeoff_refinement: TakeoffRefinement::BundleAdjustment,
             takeoff_bundle_iterations: 12,
             takeoff_bundle_smoothness_rel_std: 0.1,
+            zupt_max_speed_m_s: 0.1,
+            zupt_velocity_std_m_s: 0.005,
         }
     }
 }
@@ -265,6 +274,8 @@ pub struct OdometryStats {
     pub keyframe_reuses: usize,
     /// Times a stored keyframe lost track right after the tracker returned to it.
     pub keyframe_reuse_failures: usize,
+    /// Frames whose velocity was set to zero (the vehicle at rest).
+    pub zero_velocity_updates: usize,
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
     /// Scale correction of each applied take-off refinement pass.
@@ -359,6 +370,11 @@ pub struct Odometry {
     reusing: bool,
     /// The mapper's keyframe left for a stored one (returned to if the stored one fails).
     left_kf: Option<StoredKeyframe>,
+    /// The stored keyframe tracked before the current stored one, if the switch was from one
+    /// stored keyframe to the next: returned to instead of `left_kf`, which after a chain of
+    /// stored keyframes lies far behind (seed 1 of the demo returned 3 s and 1.4 m back and
+    /// lost track).
+    prev_stored: Option<u32>,
     /// Frames tracked since the last switch to a stored keyframe.
     reuse_frames: u32,
     /// Stored keyframes that failed since the last new keyframe was installed.
@@ -455,6 +471,7 @@ impl Odometry {
             pending_kf: None,
             reusing: false,
             left_kf: None,
+            prev_stored: None,
             failed_reuse: Vec::new(),
             reuse_frames: 0,
             store: KeyframeStore::new(cfg.reuse.clone()),
@@ -698,6 +715,14 @@ impl Odometry {
                     self.init_started = Some(t);
                 }
             }
+        }
+        if static_now
+            && matches!(
+                self.phase,
+                Phase::Tracking | Phase::Initializing | Phase::Lost
+            )
+        {
+            self.zero_velocity_update(&mut result);
         }
         if self.phase == Phase::Tracking
             && self.adjusting_keyframe().is_some()
@@ -1211,12 +1236,35 @@ impl Odometry {
         Some(correction)
     }
 
+    /// The IMU says the vehicle rests: if the estimated speed is small enough to be drift, the
+    /// velocity is set to zero (`zupt_*` of `[bootstrap]`).
+    fn zero_velocity_update(&mut self, result: &mut TrackResult) {
+        let b = &self.cfg.bootstrap;
+        let mut x = *self.tracker.state();
+        if !(x.nav.v_world_m_s.norm() < b.zupt_max_speed_m_s) {
+            return;
+        }
+        x.nav.v_world_m_s = Vector3::zeros();
+        let mut cov = *self.tracker.covariance();
+        for i in 6..9 {
+            for j in 0..15 {
+                cov[(i, j)] = 0.0;
+                cov[(j, i)] = 0.0;
+            }
+            cov[(i, i)] = b.zupt_velocity_std_m_s.powi(2);
+        }
+        self.tracker.reset_state(x, cov);
+        result.state.nav.v_world_m_s = Vector3::zeros();
+        self.stats.zero_velocity_updates += 1;
+    }
+
     /// Tracking is lost: no keyframe until a new one is installed.
     fn lose_keyframe(&mut self) {
         self.tracker.clear_keyframe();
         self.tracking_kf = None;
         self.tracking_map = None;
         self.reusing = false;
+        self.prev_stored = None;
     }
 
     /// The tracker asks for a new keyframe: if a stored keyframe (not the one tracked, not one
@@ -1241,6 +1289,7 @@ impl Odometry {
         let Some(stored) = self.store.get(id).cloned() else {
             return false;
         };
+        self.prev_stored = if self.reusing { self.tracking_kf } else { None };
         let previous = self.tracker.set_keyframe(stored.kf);
         if !self.reusing
             && let (Some(kf), Some(map)) = (previous, self.tracking_map.take())
@@ -1291,6 +1340,21 @@ impl Odometry {
             self.failed_reuse.push(id);
         }
         self.stats.keyframe_reuse_failures += 1;
+        if let Some(s) = self
+            .prev_stored
+            .take()
+            .and_then(|id| self.store.get(id).cloned())
+        {
+            // Back to the stored keyframe tracked just before (it was still tracked well then);
+            // the mapper's keyframe stays left behind.
+            self.tracking_kf = Some(s.kf.id);
+            self.tracker.set_keyframe(s.kf);
+            self.tracking_map = Some(s.map);
+            self.reuse_frames = self.cfg.reuse.probation_frames + 1;
+            self.history.clear();
+            self.consecutive_flagged = 0;
+            return;
+        }
         match self.left_kf.take() {
             Some(s) => {
                 self.tracking_kf = Some(s.kf.id);
@@ -1596,6 +1660,7 @@ impl Odometry {
             self.pending_kf = None;
             self.reusing = false;
             self.left_kf = None;
+            self.prev_stored = None;
             self.failed_reuse.clear();
         }
         if n > 0 && !filled {

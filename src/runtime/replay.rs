@@ -153,6 +153,8 @@ pub struct ReplayOutput {
     pub keyframe_reuses: usize,
     pub keyframe_reuse_failures: usize,
     pub keyframes_stored: usize,
+    /// Frames whose velocity was set to zero (the vehicle at rest).
+    pub zero_velocity_updates: usize,
     /// Scale factor applied to the first map by each take-off refinement pass
     /// (`[bootstrap] refine_takeoff_passes`).
     pub takeoff_scale_corrections: Vec<f64>,
@@ -313,6 +315,7 @@ fn replay_full(
     out.keyframe_reuses = stats.keyframe_reuses;
     out.keyframe_reuse_failures = stats.keyframe_reuse_failures;
     out.keyframes_stored = stats.keyframes_stored;
+    out.zero_velocity_updates = stats.zero_velocity_updates;
     out.takeoff_scale_corrections = stats.takeoff_scales.clone();
     out.takeoff_refinement_s = stats.takeoff_refinement_s.clone();
     out.jobs_dropped = stats.jobs_dropped;

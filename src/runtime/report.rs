@@ -35,6 +35,8 @@ pub struct ReplayReport {
     pub keyframe_reuse_failures: usize,
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
+    /// Frames whose velocity was set to zero: the IMU said the vehicle rests (`[bootstrap] zupt_*`).
+    pub zero_velocity_updates: usize,
     /// Scale factor applied to the first map by each take-off refinement pass.
     pub takeoff_scale_corrections: Vec<f64>,
     /// Wall time of each take-off refinement pass, ms (the frames meanwhile are IMU-only).
@@ -161,6 +163,7 @@ impl ReplayReport {
             keyframe_reuses: out.keyframe_reuses,
             keyframe_reuse_failures: out.keyframe_reuse_failures,
             keyframes_stored: out.keyframes_stored,
+            zero_velocity_updates: out.zero_velocity_updates,
             takeoff_scale_corrections: out.takeoff_scale_corrections.clone(),
             takeoff_refinement_ms: out.takeoff_refinement_s.iter().map(|s| s * 1e3).collect(),
             tracking_ms_p50: pct(50.0),
@@ -303,6 +306,10 @@ impl ReplayReport {
                 "{} ({}) / {}",
                 self.keyframe_reuses, self.keyframe_reuse_failures, self.keyframes_stored
             ),
+        );
+        row(
+            "zero-velocity updates",
+            self.zero_velocity_updates.to_string(),
         );
         if !self.takeoff_scale_corrections.is_empty() {
             let joined = |v: &[f64], decimals: usize| {
