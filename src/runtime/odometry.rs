@@ -1241,7 +1241,8 @@ impl Odometry {
     fn zero_velocity_update(&mut self, result: &mut TrackResult) {
         let b = &self.cfg.bootstrap;
         let mut x = *self.tracker.state();
-        if !(x.nav.v_world_m_s.norm() < b.zupt_max_speed_m_s) {
+        let speed_m_s = x.nav.v_world_m_s.norm();
+        if speed_m_s.is_nan() || speed_m_s >= b.zupt_max_speed_m_s {
             return;
         }
         x.nav.v_world_m_s = Vector3::zeros();
