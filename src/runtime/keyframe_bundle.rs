@@ -40,12 +40,6 @@ pub struct KeyframeBundleConfig {
     pub velocity_std_m_s: f64,
     /// Prior standard deviation of the accelerometer bias around the keyframe's, m/s².
     pub accel_bias_std_m_s2: f64,
-    /// An adjustment that moves the accelerometer bias by more than this many
-    /// `accel_bias_std_m_s2` is rejected (the keyframe is installed as the mapper built it): a
-    /// few tenths of a second of IMU cannot tell the bias, and such a move is the photometric
-    /// terms of a bad map pushing it (demo seed 20: 0.25 m/s², then a hover drifted 1 m/s). On the
-    /// demo seeds the accepted moves are 0.05 m/s² median, 0.1 at most. 0 = no check.
-    pub max_accel_bias_change_sigmas: f64,
     /// Each inverse depth is pulled toward its image neighbours' median with this relative σ.
     pub smoothness_rel_std: f64,
     /// Standard deviation of each inverse depth around the mapper's, relative (0 = none).
@@ -66,7 +60,6 @@ impl Default for KeyframeBundleConfig {
             iterations_per_level: 6,
             velocity_std_m_s: 0.01,
             accel_bias_std_m_s2: 0.05,
-            max_accel_bias_change_sigmas: 3.0,
             smoothness_rel_std: 0.1,
             depth_rel_std: 0.05,
             imu_noise_factor: 0.1,
@@ -205,12 +198,6 @@ pub fn bundle_adjust_keyframe(
         },
     };
     let r = problem.solve()?;
-    let bias_change_m_s2 = (r.start.bias.accel_m_s2 - start.bias.accel_m_s2).norm();
-    if cfg.max_accel_bias_change_sigmas > 0.0
-        && bias_change_m_s2 > cfg.max_accel_bias_change_sigmas * cfg.accel_bias_std_m_s2
-    {
-        return None;
-    }
     let cam = kf.cameras.first()?;
     let given = &problem.host;
     let mut changes = Vec::with_capacity(given.rays.len());

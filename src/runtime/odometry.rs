@@ -370,11 +370,6 @@ pub struct Odometry {
     reusing: bool,
     /// The mapper's keyframe left for a stored one (returned to if the stored one fails).
     left_kf: Option<StoredKeyframe>,
-    /// The stored keyframe tracked before the current stored one, if the switch was from one
-    /// stored keyframe to the next: returned to instead of `left_kf`, which after a chain of
-    /// stored keyframes lies far behind (seed 1 of the demo returned 3 s and 1.4 m back and
-    /// lost track).
-    prev_stored: Option<u32>,
     /// Frames tracked since the last switch to a stored keyframe.
     reuse_frames: u32,
     /// Stored keyframes that failed since the last new keyframe was installed.
@@ -471,7 +466,6 @@ impl Odometry {
             pending_kf: None,
             reusing: false,
             left_kf: None,
-            prev_stored: None,
             failed_reuse: Vec::new(),
             reuse_frames: 0,
             store: KeyframeStore::new(cfg.reuse.clone()),
@@ -1265,7 +1259,6 @@ impl Odometry {
         self.tracking_kf = None;
         self.tracking_map = None;
         self.reusing = false;
-        self.prev_stored = None;
     }
 
     /// The tracker asks for a new keyframe: if a stored keyframe (not the one tracked, not one
@@ -1290,7 +1283,6 @@ impl Odometry {
         let Some(stored) = self.store.get(id).cloned() else {
             return false;
         };
-        self.prev_stored = if self.reusing { self.tracking_kf } else { None };
         let previous = self.tracker.set_keyframe(stored.kf);
         if !self.reusing
             && let (Some(kf), Some(map)) = (previous, self.tracking_map.take())
@@ -1341,21 +1333,6 @@ impl Odometry {
             self.failed_reuse.push(id);
         }
         self.stats.keyframe_reuse_failures += 1;
-        if let Some(s) = self
-            .prev_stored
-            .take()
-            .and_then(|id| self.store.get(id).cloned())
-        {
-            // Back to the stored keyframe tracked just before (it was still tracked well then);
-            // the mapper's keyframe stays left behind.
-            self.tracking_kf = Some(s.kf.id);
-            self.tracker.set_keyframe(s.kf);
-            self.tracking_map = Some(s.map);
-            self.reuse_frames = self.cfg.reuse.probation_frames + 1;
-            self.history.clear();
-            self.consecutive_flagged = 0;
-            return;
-        }
         match self.left_kf.take() {
             Some(s) => {
                 self.tracking_kf = Some(s.kf.id);
@@ -1661,7 +1638,6 @@ impl Odometry {
             self.pending_kf = None;
             self.reusing = false;
             self.left_kf = None;
-            self.prev_stored = None;
             self.failed_reuse.clear();
         }
         if n > 0 && !filled {
