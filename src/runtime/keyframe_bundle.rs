@@ -277,15 +277,20 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_view_itself_becomes_the_adjusted_state() {
-        let tracked = state(
+    /// The view as tracked, before its adjustment.
+    fn tracked_view() -> FrameState {
+        state(
             100,
             [0.1, 0.2, 0.3],
             [1.0, 2.0, 3.0],
             [0.5, 0.0, -0.1],
             0.01,
-        );
+        )
+    }
+
+    #[test]
+    fn the_view_itself_becomes_the_adjusted_state() {
+        let tracked = tracked_view();
         let adjusted = state(
             100,
             [0.11, 0.19, 0.3],
@@ -298,13 +303,7 @@ mod tests {
 
     #[test]
     fn a_later_state_keeps_its_motion_relative_to_the_corrected_view() {
-        let tracked = state(
-            100,
-            [0.1, 0.2, 0.3],
-            [1.0, 2.0, 3.0],
-            [0.5, 0.0, -0.1],
-            0.01,
-        );
+        let tracked = tracked_view();
         let adjusted = state(
             100,
             [0.12, 0.18, 0.31],

@@ -842,7 +842,7 @@ impl Odometry {
             frames_sent: tk.frames.len(),
             snapshot: s.clone(),
         };
-        self.send_refinement(job, kind)
+        self.send_refinement(job, kind).is_ok()
     }
 
     /// Whether new keyframe `id`, ready to be installed, is to be adjusted first
@@ -885,33 +885,28 @@ impl Odometry {
         }));
         let kind = PendingKind::Keyframe {
             tracked_last,
-            unadjusted: Box::new(kf.clone()),
+            unadjusted: Box::new(kf),
             snapshot: s.clone(),
         };
-        if self.send_refinement(job, kind) {
-            Ok(())
-        } else {
-            Err(Box::new(kf))
-        }
+        self.send_refinement(job, kind).map_err(|kind| match *kind {
+            PendingKind::Keyframe { unadjusted, .. } => unadjusted,
+            PendingKind::Takeoff { .. } => unreachable!("sent as a keyframe adjustment"),
+        })
     }
 
     /// Queues `job` (offline waiting for room, real time only if there is room) and awaits it.
     /// At most one job is out at a time (so neither queue can fill up and block): an earlier one
     /// still out is superseded — offline its outcome is awaited and dropped, in real time the new
-    /// job is dropped while the thread is busy.
-    fn send_refinement(&mut self, job: RefineJob, kind: PendingKind) -> bool {
+    /// job is dropped while the thread is busy. Not sent: `kind` is handed back.
+    fn send_refinement(
+        &mut self,
+        job: RefineJob,
+        kind: PendingKind,
+    ) -> Result<(), Box<PendingKind>> {
         let Some(refiner) = &self.refiner else {
-            return false;
+            return Err(Box::new(kind));
         };
-        while self.refine_outstanding > 0 {
-            let o = if self.cfg.realtime {
-                refiner.try_recv()
-            } else {
-                refiner.recv()
-            };
-            if o.is_none() {
-                break;
-            }
+        while self.refine_outstanding > 0 && refiner.next_outcome(!self.cfg.realtime).is_some() {
             self.refine_outstanding -= 1;
         }
         let sent = self.refine_outstanding == 0
@@ -922,7 +917,7 @@ impl Odometry {
             };
         if !sent {
             self.stats.refinements_dropped += 1;
-            return false;
+            return Err(Box::new(kind));
         }
         let seq = self.refine_seq;
         self.refine_outstanding = 1;
@@ -935,7 +930,7 @@ impl Odometry {
             frame_number: self.frame_number,
             kind,
         });
-        true
+        Ok(())
     }
 
     /// Takes the awaited refinement's outcome a fixed number of frames after it was sent
@@ -952,7 +947,6 @@ impl Odometry {
             }
             return;
         };
-        let wait = !self.cfg.realtime;
         let lag = match p.kind {
             PendingKind::Keyframe { .. } => self.cfg.keyframe_bundle.lag_frames,
             PendingKind::Takeoff { .. } => self.cfg.bootstrap.takeoff_lag_frames,
@@ -962,13 +956,7 @@ impl Odometry {
         }
         let want = p.seq;
         let mut outcome = None;
-        loop {
-            let o = if wait {
-                refiner.recv()
-            } else {
-                refiner.try_recv()
-            };
-            let Some(o) = o else { break };
+        while let Some(o) = refiner.next_outcome(!self.cfg.realtime) {
             self.refine_outstanding = self.refine_outstanding.saturating_sub(1);
             if o.seq == want {
                 outcome = Some(o);

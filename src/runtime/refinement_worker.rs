@@ -148,6 +148,11 @@ impl RefinementThread {
         self.outcomes.recv().ok()
     }
 
+    /// [`Self::recv`] if `wait` (offline), else [`Self::try_recv`] (real time).
+    pub fn next_outcome(&self, wait: bool) -> Option<RefineOutcome> {
+        if wait { self.recv() } else { self.try_recv() }
+    }
+
     /// Closes the queue and waits for the thread.
     pub fn finish(self) {
         drop(self.jobs);
