@@ -173,3 +173,61 @@ fn disjoint_or_bad_input_fails_with_a_clear_message() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn segments_print_the_ate_of_each_phase_and_reject_unordered_cuts() {
+    let dir = scratch_dir("eval-segments");
+    let gt_path = dir.join("gt.tum");
+    let est_path = dir.join("est.tum");
+    // Ground truth along x at 1 m/s for 4 s; the estimate is exact for the first 2 s, then 0.1 m
+    // off in z (an SE3 alignment cannot remove a step): the error sits in the second segment.
+    let (mut gt, mut est) = (String::new(), String::new());
+    for k in 0..=40 {
+        let t = 1.0 + 0.1 * k as f64;
+        let x = 0.1 * k as f64;
+        let y = (0.5 * x).sin();
+        gt.push_str(&format!("{t:.3} {x} {y} 0 0 0 0 1\n"));
+        let z = if t < 3.0 { 0.0 } else { 0.1 };
+        est.push_str(&format!("{t:.3} {x} {y} {z} 0 0 0 1\n"));
+    }
+    std::fs::write(&gt_path, gt).unwrap();
+    std::fs::write(&est_path, est).unwrap();
+    let run = |cuts: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
+            .args([OsStr::new("eval"), OsStr::new("--gt"), gt_path.as_os_str()])
+            .args([OsStr::new("--est"), est_path.as_os_str()])
+            .args([OsStr::new("--align"), OsStr::new("none")])
+            .args([OsStr::new("--segments-s"), OsStr::new(cuts)])
+            .output()
+            .unwrap()
+    };
+    let out = run("2");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8(out.stdout).unwrap();
+    let row = |label: &str| {
+        table
+            .lines()
+            .find(|l| l.starts_with(label))
+            .unwrap_or_else(|| panic!("no row {label} in\n{table}"))
+            .split_whitespace()
+            .nth(4)
+            .unwrap()
+            .parse::<f64>()
+            .unwrap()
+    };
+    assert_eq!(row("ATE 0.0-2.0 s [m]"), 0.0, "{table}");
+    assert!((row("ATE 2.0-4.0 s [m]") - 0.1).abs() < 1e-9, "{table}");
+
+    let out = run("2,1");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--segments-s") && err.contains("increasing"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

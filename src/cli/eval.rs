@@ -34,6 +34,11 @@ pub struct EvalArgs {
     /// Draw a PNG: top view of both trajectories and the ATE over time.
     #[arg(long, value_name = "OUT.png")]
     pub plot: Option<PathBuf>,
+    /// Also print the ATE RMSE of each time segment these cut times (s since the first matched
+    /// pose, increasing, comma-separated) divide the run into, under the one alignment — e.g. the
+    /// built-in demo's phases from `1.5,4.5,32.5,35.5` (idle, take-off, laps, hover turn, landing).
+    #[arg(long, value_name = "S,S,...", value_delimiter = ',')]
+    pub segments_s: Vec<f64>,
 }
 
 /// `--align` values.
@@ -65,6 +70,15 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             args.max_dt_ms
         );
     }
+    let cuts = &args.segments_s;
+    let valid =
+        cuts.iter().all(|c| c.is_finite() && *c > 0.0) && cuts.windows(2).all(|w| w[0] < w[1]);
+    if !valid {
+        anyhow::bail!(
+            "--segments-s must be positive, finite, increasing seconds since the first matched \
+             pose, got {cuts:?}"
+        );
+    }
     let (gt, _) = Trajectory::read(&args.gt).context("reading the ground truth (--gt)")?;
     let (est, _) = Trajectory::read(&args.est).context("reading the estimate (--est)")?;
     let opts = EvalOptions {
@@ -79,6 +93,11 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         )
     })?;
     print!("{}", report.to_table());
+    if !args.segments_s.is_empty() {
+        for seg in report.segment_errors(&args.segments_s) {
+            print!("{}", seg.to_row());
+        }
+    }
     if report.gt_path_m < SHORT_PATH_M {
         eprintln!(
             "warning: the matched ground truth travels only {:.3} m: alignment and scale are \

@@ -27,7 +27,7 @@ pub mod umeyama;
 
 pub use associate::{PosePair, associate};
 pub use plot::{PlotError, plot_report};
-pub use report::{EvalReport, PoseError};
+pub use report::{EvalReport, PoseError, SegmentError};
 pub use umeyama::{Sim3, UmeyamaError, umeyama};
 
 use crate::dataset::Trajectory;

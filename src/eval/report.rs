@@ -71,6 +71,29 @@ pub struct PoseError {
     pub rot_err_deg: f64,
 }
 
+/// The ATE over one time segment of a run ([`EvalReport::segment_errors`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SegmentError {
+    /// Start and end of the segment, s since the first matched pose.
+    pub from_s: f64,
+    pub to_s: f64,
+    /// Matched poses in it.
+    pub poses: usize,
+    /// ATE RMSE of those poses, m (`None` without any).
+    pub ate_rmse_m: Option<f64>,
+}
+
+impl SegmentError {
+    /// One table row: `ATE 5.0–33.0 s [m]   0.012345 (560 poses)`.
+    pub fn to_row(&self) -> String {
+        let label = format!("ATE {:.1}-{:.1} s [m]", self.from_s, self.to_s);
+        match self.ate_rmse_m {
+            Some(e) => format!("{label:<24} {e:.6} ({} poses)\n", self.poses),
+            None => format!("{label:<24} n/a (no poses)\n"),
+        }
+    }
+}
+
 /// What [`EvalReport::new`] summarises.
 pub(super) struct ReportInputs<'a> {
     pub align: Alignment,
@@ -128,6 +151,32 @@ impl EvalReport {
             scale_error_pct: 100.0 * (inp.sim3_scale - 1.0).abs(),
             per_pose: inp.per_pose,
         }
+    }
+
+    /// The ATE RMSE of the matched poses in the time segments that `cuts_s` (s since the first
+    /// matched pose, increasing) divide the run into: `[0, c₁)`, `[c₁, c₂)`, …, `[cₙ, end]` — the
+    /// flight phases of one alignment (the whole run's), to see where the error is made.
+    pub fn segment_errors(&self, cuts_s: &[f64]) -> Vec<SegmentError> {
+        let mut bounds = vec![0.0];
+        bounds.extend_from_slice(cuts_s);
+        bounds.push(f64::INFINITY);
+        bounds
+            .windows(2)
+            .map(|w| {
+                let e: Vec<f64> = self
+                    .per_pose
+                    .iter()
+                    .filter(|p| p.time_s >= w[0] && p.time_s < w[1])
+                    .map(|p| p.ate_m)
+                    .collect();
+                SegmentError {
+                    from_s: w[0],
+                    to_s: w[1].min(self.duration_s),
+                    poses: e.len(),
+                    ate_rmse_m: ErrorStats::of(&e).map(|s| s.rmse),
+                }
+            })
+            .collect()
     }
 
     /// Pretty-printed JSON of the figures (flat object, keys as the field names).
@@ -255,6 +304,33 @@ mod tests {
                 })
                 .collect(),
         })
+    }
+
+    #[test]
+    fn segment_errors_split_the_matched_poses_at_the_cut_times() {
+        let mut r = sample();
+        for (p, e) in r.per_pose.iter_mut().zip([0.3, 0.4, 0.1]) {
+            p.ate_m = e;
+        }
+        let segs = r.segment_errors(&[1.5, 5.0]);
+        assert_eq!(segs.len(), 3);
+        assert_eq!((segs[0].from_s, segs[0].to_s, segs[0].poses), (0.0, 1.5, 2));
+        assert!((segs[0].ate_rmse_m.unwrap() - 0.125f64.sqrt()).abs() < 1e-12);
+        assert_eq!((segs[1].from_s, segs[1].to_s, segs[1].poses), (1.5, 2.0, 1));
+        assert!((segs[1].ate_rmse_m.unwrap() - 0.1).abs() < 1e-12);
+        // Past the last pose: empty, ends at the run's end.
+        assert_eq!((segs[2].from_s, segs[2].to_s, segs[2].poses), (5.0, 2.0, 0));
+        assert_eq!(segs[2].ate_rmse_m, None);
+        assert!(
+            segs[0].to_row().starts_with("ATE 0.0-1.5 s [m]"),
+            "{}",
+            segs[0].to_row()
+        );
+        assert!(segs[2].to_row().contains("n/a"));
+        // No cuts: the whole run.
+        let all = r.segment_errors(&[]);
+        assert_eq!(all.len(), 1);
+        assert_eq!(all[0].poses, 3);
     }
 
     #[test]
