@@ -7,7 +7,7 @@ mod eval_common;
 use eval_common::{num, perturb, read_json, run_vidslam, scratch_dir};
 use nalgebra::{UnitQuaternion, Vector3};
 use std::ffi::OsStr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use vidslam::dataset::{StampedPose, Trajectory, TrajectoryFormat, shared_data_or_skip};
 use vidslam::eval::Sim3;
 
@@ -130,6 +130,18 @@ fn recovers_a_known_similarity_and_noise_on_v101_ground_truth() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Runs `vidslam eval --gt GT --est EST EXTRA…`, which must fail; returns its stderr.
+fn eval_failure(gt: &Path, est: &Path, extra: &[&str]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
+        .args([OsStr::new("eval"), OsStr::new("--gt"), gt.as_os_str()])
+        .args([OsStr::new("--est"), est.as_os_str()])
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 #[test]
 fn disjoint_or_bad_input_fails_with_a_clear_message() {
     let dir = scratch_dir("eval-bad-input");
@@ -141,13 +153,7 @@ fn disjoint_or_bad_input_fails_with_a_clear_message() {
     .unwrap();
     let bad = dir.join("bad.tum");
     std::fs::write(&bad, "1.0 0 0 0 0 0 0 1\n1.5 0 nan 0 0 0 0 1\n").unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
-        .args([OsStr::new("eval"), OsStr::new("--gt"), gt_path.as_os_str()])
-        .args([OsStr::new("--est"), bad.as_os_str()])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = eval_failure(&gt_path, &bad, &[]);
     assert!(
         err.contains("--est") && err.contains("bad.tum:2") && err.contains("not finite"),
         "{err}"
@@ -155,18 +161,7 @@ fn disjoint_or_bad_input_fails_with_a_clear_message() {
 
     let late = dir.join("late.tum");
     std::fs::write(&late, "100.0 0 0 0 0 0 0 1\n101.0 1 0 0 0 0 0 1\n").unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
-        .args([OsStr::new("eval"), OsStr::new("--gt"), gt_path.as_os_str()])
-        .args([
-            OsStr::new("--est"),
-            late.as_os_str(),
-            OsStr::new("--max-dt-ms"),
-            OsStr::new("2000"),
-        ])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = eval_failure(&gt_path, &late, &["--max-dt-ms", "2000"]);
     assert!(
         err.contains("same clock") && err.contains("100.000000000"),
         "{err}"
@@ -180,7 +175,7 @@ fn segments_print_the_ate_of_each_phase_and_reject_unordered_cuts() {
     let gt_path = dir.join("gt.tum");
     let est_path = dir.join("est.tum");
     // Ground truth along x at 1 m/s for 4 s; the estimate is exact for the first 2 s, then 0.1 m
-    // off in z (an SE3 alignment cannot remove a step): the error sits in the second segment.
+    // off in z; not aligned (`--align none`), so the error sits in the second segment only.
     let (mut gt, mut est) = (String::new(), String::new());
     for k in 0..=40 {
         let t = 1.0 + 0.1 * k as f64;
@@ -192,21 +187,18 @@ fn segments_print_the_ate_of_each_phase_and_reject_unordered_cuts() {
     }
     std::fs::write(&gt_path, gt).unwrap();
     std::fs::write(&est_path, est).unwrap();
-    let run = |cuts: &str| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
-            .args([OsStr::new("eval"), OsStr::new("--gt"), gt_path.as_os_str()])
-            .args([OsStr::new("--est"), est_path.as_os_str()])
-            .args([OsStr::new("--align"), OsStr::new("none")])
-            .args([OsStr::new("--segments-s"), OsStr::new(cuts)])
-            .output()
-            .unwrap()
-    };
-    let out = run("2");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let arg = |s: &'static str| OsStr::new(s);
+    let out = run_vidslam(&[
+        arg("eval"),
+        arg("--gt"),
+        gt_path.as_os_str(),
+        arg("--est"),
+        est_path.as_os_str(),
+        arg("--align"),
+        arg("none"),
+        arg("--segments-s"),
+        arg("2"),
+    ]);
     let table = String::from_utf8(out.stdout).unwrap();
     let row = |label: &str| {
         table
@@ -222,9 +214,11 @@ fn segments_print_the_ate_of_each_phase_and_reject_unordered_cuts() {
     assert_eq!(row("ATE 0.0-2.0 s [m]"), 0.0, "{table}");
     assert!((row("ATE 2.0-4.0 s [m]") - 0.1).abs() < 1e-9, "{table}");
 
-    let out = run("2,1");
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = eval_failure(
+        &gt_path,
+        &est_path,
+        &["--align", "none", "--segments-s", "2,1"],
+    );
     assert!(
         err.contains("--segments-s") && err.contains("increasing"),
         "{err}"

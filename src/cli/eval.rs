@@ -93,8 +93,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         )
     })?;
     print!("{}", report.to_table());
-    if !args.segments_s.is_empty() {
-        for seg in report.segment_errors(&args.segments_s) {
+    if !cuts.is_empty() {
+        for seg in report.segment_errors(cuts) {
             print!("{}", seg.to_row());
         }
     }
