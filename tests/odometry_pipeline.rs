@@ -367,6 +367,27 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
         with.frames.iter().all(|r| r.state.is_finite()),
         "a non-finite state"
     );
+    // The scale observer follows the whole flight (through the returns to stored keyframes,
+    // whose jumps it steps over) and, on this ideal render, finds the tracked trajectory
+    // metric: the IMU agrees with the maps' scale.
+    let mut scales: Vec<f64> = with.imu_scale.iter().map(|e| e.scale).collect();
+    scales.sort_by(f64::total_cmp);
+    let last_t = with
+        .imu_scale
+        .last()
+        .map(|e| e.t.secs_since(with.frames[0].t));
+    println!(
+        "scale vs IMU: {} estimates, p10/p50/p90 {:?} / {:?} / {:?}, last at {:?} s",
+        scales.len(),
+        scales.get(scales.len() / 10),
+        scales.get(scales.len() / 2),
+        scales.get(scales.len() * 9 / 10),
+        last_t
+    );
+    assert!(scales.len() >= 20, "{} estimates", scales.len());
+    assert!(last_t.is_some_and(|t| t > 30.0), "{last_t:?}");
+    let median = scales[scales.len() / 2];
+    assert!((median - 1.0).abs() < 0.02, "median {median}");
     // Zero-velocity updates hold the 2 s idle after the landing (src/sim/flights.rs), and fire
     // only where the vehicle is (nearly) at rest: after the take-off, every frame whose velocity is
     // exactly zero has a true speed under the updates' bound (the end of the hover turn, where

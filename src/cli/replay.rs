@@ -5,6 +5,7 @@ use crate::eval::plot_report;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
 use crate::runtime::replay::StartMode;
 use crate::runtime::report::{frames_csv, write_ply};
+use crate::runtime::scale_observer::imu_scale_csv;
 use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
@@ -85,6 +86,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         window: cfg.window.clone(),
         reuse: cfg.reuse.clone(),
         keyframe_bundle: cfg.keyframe_bundle.clone(),
+        scale_observer: cfg.scale_observer,
         depth: match a.depth {
             DepthArg::Gt => DepthSource::GroundTruth,
             DepthArg::Semidense => DepthSource::Semidense,
@@ -140,6 +142,11 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         report.set_map_depth(&depth_rows);
         let p = a.out.join("keyframes.csv");
         std::fs::write(&p, keyframes_csv(&depth_rows))
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    if !out.imu_scale.is_empty() {
+        let p = a.out.join("imu_scale.csv");
+        std::fs::write(&p, imu_scale_csv(&out.imu_scale))
             .with_context(|| format!("writing {}", p.display()))?;
     }
     let csv_path = a.out.join("frames.csv");

@@ -52,6 +52,7 @@ impl ImuNoise {
     }
 }
 
+pub mod flight_scale;
 pub mod integration;
 
 pub use integration::{ImuBias, NavState, Preintegration, propagate};

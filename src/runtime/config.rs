@@ -4,6 +4,7 @@
 use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::odometry::BootstrapConfig;
+use super::scale_observer::ScaleObserverConfig;
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::mapping::semidense::SemidenseConfig;
 use crate::smoother::WindowConfig;
@@ -29,6 +30,8 @@ pub struct Config {
     pub reuse: ReuseConfig,
     /// `[keyframe_bundle]`: in-flight photometric–inertial adjustment of each new keyframe.
     pub keyframe_bundle: KeyframeBundleConfig,
+    /// `[scale_observer]`: the map scale measured against the IMU in flight.
+    pub scale_observer: ScaleObserverConfig,
 }
 
 #[derive(Debug, thiserror::Error)]

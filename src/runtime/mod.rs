@@ -9,6 +9,7 @@ pub mod odometry;
 pub mod refinement_worker;
 pub mod replay;
 pub mod report;
+pub mod scale_observer;
 pub mod takeoff;
 
 pub use config::Config;

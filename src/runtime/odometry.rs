@@ -40,6 +40,7 @@ use super::refinement_worker::{
     KeyframeJob, ReadyKeyframe, RefineJob, RefineResult, RefineSettings, RefinementThread,
     TakeoffJob,
 };
+use super::scale_observer::{ScaleObserver, ScaleObserverConfig, ScaleSample};
 use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
@@ -257,6 +258,7 @@ pub struct OdometryConfig {
     pub window: WindowConfig,
     pub reuse: ReuseConfig,
     pub keyframe_bundle: KeyframeBundleConfig,
+    pub scale_observer: ScaleObserverConfig,
     /// Real-time mode: never wait for the mapper (non-deterministic).
     pub realtime: bool,
 }
@@ -295,6 +297,8 @@ pub struct OdometryStats {
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub catch_up_frames: usize,
     pub jobs_dropped: usize,
+    /// The map scale measured against the IMU at each new keyframe (`[scale_observer]`).
+    pub imu_scale: Vec<ScaleSample>,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
     /// Images are divided by the rig's vignetting.
@@ -409,6 +413,13 @@ pub struct Odometry {
     mapper_from_world: Isometry3<f64>,
     /// Camera pose of the newest keyframe as the mapper holds it.
     mapper_kf_pose: Option<(u32, Isometry3<f64>)>,
+    /// The tracked trajectory of the last seconds, for the map scale (`[scale_observer]`).
+    scale: ScaleObserver,
+    /// The position change tracking made on the current frame (before any correction).
+    tracked_step_m: Option<Vector3<f64>>,
+    /// The next frame is tracked against another keyframe than the last one was (a stored one,
+    /// or back from it), whose pose disagrees with the chain's by the drift.
+    keyframe_jump: bool,
     /// Per-pixel `1 / V` of the rig's vignetting (`[tracking] correct_vignetting`).
     vignette_gain: Option<Vec<f32>>,
 }
@@ -454,6 +465,9 @@ impl Odometry {
             refine_seq: 0,
             refine_outstanding: 0,
             imu: VecDeque::with_capacity(4096),
+            scale: ScaleObserver::new(cfg.scale_observer),
+            tracked_step_m: None,
+            keyframe_jump: false,
             phase: Phase::WaitingForStart,
             last_t: None,
             seq: 0,
@@ -536,6 +550,7 @@ impl Odometry {
             self.stats.vignette_saturated_px += correct_in_place(&mut image, gain) as u64;
         }
         self.frame_number += 1;
+        self.tracked_step_m = None;
         self.collect_snapshots();
         self.collect_refinement();
         let image = Arc::new(image);
@@ -684,6 +699,14 @@ impl Odometry {
                             h.t_world_cam = c * h.t_world_cam;
                         }
                     }
+                    if let Some(e) = self.scale.estimate(self.imu.make_contiguous()) {
+                        self.stats.imu_scale.push(ScaleSample {
+                            t,
+                            scale: e.scale,
+                            scale_std: e.scale_std,
+                            rms_m: e.rms_m,
+                        });
+                    }
                     let history: Vec<MapFrame> = self.history.iter().cloned().collect();
                     let propagate = self.cfg.bootstrap.propagate_maps;
                     self.start_keyframe(frame, history, propagate);
@@ -731,6 +754,10 @@ impl Odometry {
             };
             self.history.push_front(frame);
             self.history.truncate(self.cfg.bootstrap.history_frames);
+        }
+        match (self.phase, self.tracked_step_m.take()) {
+            (Phase::Tracking, Some(step)) => self.scale.push(result.state, step),
+            _ => self.scale.clear(),
         }
         self.frames_since_refresh += 1;
         OdometryFrame {
@@ -792,7 +819,17 @@ impl Odometry {
         // `integrate` finds the samples bracketing the interval itself.
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
         self.last_t = Some(t);
-        self.tracker.track(t, image, &pre)
+        let x0 = *self.tracker.state();
+        let r = self.tracker.track(t, image, &pre);
+        // The first frame on another keyframe jumps by the drift between the two: the IMU's
+        // step stands in for it.
+        let p1 = if std::mem::take(&mut self.keyframe_jump) {
+            pre.predict(&x0.nav, &x0.bias).p_world_m
+        } else {
+            r.state.nav.p_world_m
+        };
+        self.tracked_step_m = Some(p1 - x0.nav.p_world_m);
+        r
     }
 
     /// Sends one refinement pass of the take-off whose first map `kf` (snapshot `s`) is ready to
@@ -1303,6 +1340,7 @@ impl Odometry {
             self.tracker.reset_state(x, cov);
         }
         self.reusing = true;
+        self.keyframe_jump = true;
         self.stats.keyframe_reuses += 1;
         true
     }
@@ -1328,6 +1366,7 @@ impl Odometry {
                 self.tracking_map = Some(s.map);
                 self.reusing = false;
                 self.history.clear();
+                self.keyframe_jump = true;
                 self.consecutive_flagged = 0;
             }
             None => {

@@ -10,6 +10,7 @@ use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
 use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, Phase, Rig};
+use super::scale_observer::{ScaleObserverConfig, ScaleSample};
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
@@ -51,6 +52,7 @@ pub struct ReplayOptions {
     pub window: WindowConfig,
     pub reuse: ReuseConfig,
     pub keyframe_bundle: KeyframeBundleConfig,
+    pub scale_observer: ScaleObserverConfig,
     pub depth: DepthSource,
     pub start: StartMode,
     /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
@@ -108,6 +110,7 @@ impl Default for ReplayOptions {
             window: WindowConfig::default(),
             reuse: ReuseConfig::default(),
             keyframe_bundle: KeyframeBundleConfig::default(),
+            scale_observer: ScaleObserverConfig::default(),
             depth: DepthSource::Semidense,
             start: StartMode::Static,
             realtime: false,
@@ -162,6 +165,8 @@ pub struct ReplayOutput {
     pub takeoff_refinement_s: Vec<f64>,
     /// Wall time of each keyframe-window solve, s.
     pub window_solve_s: Vec<f64>,
+    /// The map scale measured against the IMU at each new keyframe (`[scale_observer]`).
+    pub imu_scale: Vec<ScaleSample>,
     /// Wall time and median relative inverse-depth change of each in-flight keyframe
     /// adjustment (`[keyframe_bundle]`).
     pub keyframe_bundle_s: Vec<f64>,
@@ -263,6 +268,7 @@ fn replay_full(
         window: opts.window.clone(),
         reuse: opts.reuse.clone(),
         keyframe_bundle: opts.keyframe_bundle.clone(),
+        scale_observer: opts.scale_observer,
         realtime: opts.realtime,
     };
     let rig = Rig {
@@ -320,6 +326,7 @@ fn replay_full(
     out.takeoff_refinement_s = stats.takeoff_refinement_s.clone();
     out.jobs_dropped = stats.jobs_dropped;
     out.window_solve_s = stats.window_solve_s;
+    out.imu_scale = stats.imu_scale;
     out.keyframe_bundle_s = stats.keyframe_bundle_s;
     out.keyframe_bundle_depth_changes = stats.keyframe_bundle_depth_changes;
     out.refinements_dropped = stats.refinements_dropped;

@@ -85,6 +85,13 @@ pub struct ReplayReport {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub keyframe_bundle_catch_up_frames: usize,
+    /// The map scale measured against the IMU without ground truth (`[scale_observer]`: the
+    /// factor from the tracked to the metric trajectory over the seconds before each new
+    /// keyframe; 1 = consistent): how many estimates, and their 10th / 50th / 90th percentiles.
+    pub imu_scale_estimates: usize,
+    pub imu_scale_p10: Option<f64>,
+    pub imu_scale_p50: Option<f64>,
+    pub imu_scale_p90: Option<f64>,
     /// Images divided by the dataset's vignetting (`cam0/vignette.yaml`), and the pixels that
     /// clipped at 255 doing so.
     pub vignette_corrected: bool,
@@ -120,6 +127,8 @@ impl ReplayReport {
         let pct = |p: f64| percentile(&ms, p);
         let mut map_ms: Vec<f64> = out.mapping.job_times_s.iter().map(|t| t * 1e3).collect();
         map_ms.sort_by(f64::total_cmp);
+        let mut imu_scale: Vec<f64> = out.imu_scale.iter().map(|e| e.scale).collect();
+        imu_scale.sort_by(f64::total_cmp);
         let mut window_ms: Vec<f64> = out.window_solve_s.iter().map(|t| t * 1e3).collect();
         window_ms.sort_by(f64::total_cmp);
         let mut kb_ms: Vec<f64> = out.keyframe_bundle_s.iter().map(|t| t * 1e3).collect();
@@ -212,6 +221,10 @@ impl ReplayReport {
             refinements_dropped: out.refinements_dropped,
             refinements_discarded: out.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.catch_up_frames,
+            imu_scale_estimates: imu_scale.len(),
+            imu_scale_p10: (!imu_scale.is_empty()).then(|| percentile(&imu_scale, 10.0)),
+            imu_scale_p50: (!imu_scale.is_empty()).then(|| percentile(&imu_scale, 50.0)),
+            imu_scale_p90: (!imu_scale.is_empty()).then(|| percentile(&imu_scale, 90.0)),
             vignette_corrected: out.vignette_saturated_px.is_some(),
             vignette_saturated_px: out.vignette_saturated_px.unwrap_or(0),
             semidense_points: out
@@ -384,6 +397,17 @@ impl ReplayReport {
                 "not corrected ([tracking] correct_vignetting off, or no cam0/vignette.yaml)".into()
             },
         );
+        if let (Some(p10), Some(p50), Some(p90)) =
+            (self.imu_scale_p10, self.imu_scale_p50, self.imu_scale_p90)
+        {
+            row(
+                "scale vs IMU",
+                format!(
+                    "{} estimates, tracked→metric p10/p50/p90 {:.3} / {:.3} / {:.3}",
+                    self.imu_scale_estimates, p10, p50, p90
+                ),
+            );
+        }
         if self.window_solves > 0 {
             row(
                 "keyframe window",
