@@ -1,6 +1,6 @@
 //! The thread of the two slow refinements the odometry makes of its own output: the take-off
 //! refinement of the first map ([`super::takeoff`], ~1 s a pass) and the in-flight keyframe
-//! adjustment ([`super::keyframe_bundle`], 100–300 ms a keyframe). Neither may hold up the
+//! adjustment ([`super::keyframe_bundle`], 200–400 ms a keyframe). Neither may hold up the
 //! odometry thread at frame rate.
 //!
 //! The odometry hands a job over and goes on: in flight it keeps tracking the previous keyframe, at

@@ -246,6 +246,13 @@ struct Linearization {
     obs_cost: Vec<f64>,
 }
 
+/// What [`PhotometricBundle::warp`] needs of the rig and the host, precomputed.
+struct WarpRig {
+    r_world_host: nalgebra::Rotation3<f64>,
+    t_cam_body: Isometry3<f64>,
+    r_cam_body: nalgebra::Rotation3<f64>,
+}
+
 /// The problem: host, views, the IMU chain and the rig.
 pub struct PhotometricBundle<'a> {
     pub t_world_host_cam: Isometry3<f64>,
@@ -424,25 +431,35 @@ impl PhotometricBundle<'_> {
         out
     }
 
+    /// The rotations and transforms every warp needs, computed once per linearisation.
+    fn warp_rig(&self) -> WarpRig {
+        let t_cam_body = self.t_body_cam.inverse();
+        WarpRig {
+            r_world_host: self.t_world_host_cam.rotation.to_rotation_matrix(),
+            r_cam_body: t_cam_body.rotation.to_rotation_matrix(),
+            t_cam_body,
+        }
+    }
+
     /// Where host ray `ray` at inverse depth `rho` appears in a view whose body pose is
     /// `(r_wb, p_wb)`, and d(pixel)/d[δθ, δp, ρ] for the body increments of
     /// [`FrameState::boxplus`] (`R ← R Exp(δθ)`, `p ← p + R δp`).
     fn warp(
         &self,
+        rig: &WarpRig,
         cam: &CameraModel,
         ray: &Vector3<f64>,
         rho: f64,
         r_wb: &Matrix3<f64>,
         p_wb: &Vector3<f64>,
     ) -> Option<(Vector2<f64>, SMatrix<f64, 2, 7>)> {
-        let r_wh = self.t_world_host_cam.rotation.to_rotation_matrix();
-        let t_cb = self.t_body_cam.inverse();
-        let r_cb = t_cb.rotation.to_rotation_matrix();
+        let r_wh = &rig.r_world_host;
+        let t_cb = &rig.t_cam_body;
         let p_w = self.t_world_host_cam * nalgebra::Point3::from(ray / rho);
         let p_b = r_wb.transpose() * (p_w.coords - p_wb);
         let p_c = t_cb * nalgebra::Point3::from(p_b);
         let (uv, jproj) = cam.project_with_jacobian(&p_c.coords)?;
-        let j_b = jproj * r_cb.matrix(); // d pixel / d p_b
+        let j_b = jproj * rig.r_cam_body.matrix(); // d pixel / d p_b
         let mut j = SMatrix::<f64, 2, 7>::zeros();
         // p_b = Exp(−δθ) Rᵀ (p_w − p − R δp) ≈ p_b + [p_b]× δθ − δp
         j.fixed_view_mut::<2, 3>(0, 0).copy_from(&(j_b * hat(&p_b)));
@@ -543,6 +560,18 @@ impl PhotometricBundle<'_> {
             })
             .collect();
         let nv = self.views.len();
+        let rig = self.warp_rig();
+        // Each view's photometric rows and columns of the normal equations, accumulated in a
+        // fixed-size block (starting from what the priors put there) and scattered back below.
+        let mut photo_blocks: Vec<(SMatrix<f64, 8, 8>, SVector<f64, 8>)> = (0..nv)
+            .map(|j| {
+                let o = START + PER_VIEW * j;
+                (
+                    SMatrix::from_fn(|a, b| hcc[(o + PHOTO_COLS[a], o + PHOTO_COLS[b])]),
+                    SVector::from_fn(|a, _| bc[o + PHOTO_COLS[a]]),
+                )
+            })
+            .collect();
         let mut points = Vec::with_capacity(host.rays.len());
         let mut active_out = Vec::with_capacity(host.rays.len() * nv);
         let mut obs_cost_out = Vec::with_capacity(host.rays.len() * nv);
@@ -572,7 +601,7 @@ impl PhotometricBundle<'_> {
                     obs_cost_out.push(0.0);
                     continue;
                 }
-                let warped = self.warp(cam, ray, rho, r_wb, p_wb);
+                let warped = self.warp(&rig, cam, ray, rho, r_wb, p_wb);
                 let counted = match active {
                     Some((a, _)) => a[i * nv + j],
                     None => warped
@@ -630,11 +659,11 @@ impl PhotometricBundle<'_> {
                 let jc = SVector::<f64, 8>::from_column_slice(&[
                     jr[0], jr[1], jr[2], jr[3], jr[4], jr[5], -i_h, -1.0,
                 ]);
-                let o = START + PER_VIEW * j;
-                for (a_i, &ca) in PHOTO_COLS.iter().enumerate() {
-                    bc[o + ca] += w * jc[a_i] * r;
-                    for (b_i, &cb) in PHOTO_COLS.iter().enumerate() {
-                        hcc[(o + ca, o + cb)] += w * jc[a_i] * jc[b_i];
+                let (hb, bb) = &mut photo_blocks[j];
+                for a_i in 0..8 {
+                    bb[a_i] += w * jc[a_i] * r;
+                    for b_i in 0..8 {
+                        hb[(a_i, b_i)] += w * jc[a_i] * jc[b_i];
                     }
                 }
                 blk.hpp += w * d_rho * d_rho;
@@ -642,6 +671,15 @@ impl PhotometricBundle<'_> {
                 blk.obs.push((j, jc * (w * d_rho)));
             }
             points.push(blk);
+        }
+        for (j, (hb, bb)) in photo_blocks.iter().enumerate() {
+            let o = START + PER_VIEW * j;
+            for (a_i, &ca) in PHOTO_COLS.iter().enumerate() {
+                bc[o + ca] = bb[a_i];
+                for (b_i, &cb) in PHOTO_COLS.iter().enumerate() {
+                    hcc[(o + ca, o + cb)] = hb[(a_i, b_i)];
+                }
+            }
         }
         Linearization {
             cost,
@@ -965,7 +1003,9 @@ mod tests {
         let p_wb = t_wb.translation.vector;
         let ray = Vector3::new(0.15, -0.1, 1.0);
         let rho = 1.0 / 0.7;
-        let (uv, j) = b.warp(&cam, &ray, rho, &r_wb, &p_wb).unwrap();
+        let (uv, j) = b
+            .warp(&b.warp_rig(), &cam, &ray, rho, &r_wb, &p_wb)
+            .unwrap();
         for k in 0..7 {
             let h = 1e-6;
             let at = |s: f64| {
@@ -982,7 +1022,7 @@ mod tests {
                     }
                     _ => rh = rho + s * h,
                 }
-                b.warp(&cam, &ray, rh, &r, &p).unwrap().0
+                b.warp(&b.warp_rig(), &cam, &ray, rh, &r, &p).unwrap().0
             };
             let num = (at(1.0) - at(-1.0)) / (2.0 * h);
             let ana: Vector2<f64> = j.column(k).into();
