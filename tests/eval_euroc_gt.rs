@@ -54,19 +54,18 @@ fn recovers_a_known_similarity_and_noise_on_v101_ground_truth() {
         dir.join("v101.png"),
     );
     let arg = |s: &'static str| OsStr::new(s);
-    let out = run_vidslam(&[
-        arg("eval"),
-        arg("--gt"),
-        gt_path.as_os_str(),
-        arg("--est"),
-        est_path.as_os_str(),
-        arg("--align"),
-        arg("sim3"),
-        arg("--json"),
-        json_sim3.as_os_str(),
-        arg("--plot"),
-        png.as_os_str(),
-    ]);
+    let out = eval_ok(
+        &gt_path,
+        &est_path,
+        &[
+            arg("--align"),
+            arg("sim3"),
+            arg("--json"),
+            json_sim3.as_os_str(),
+            arg("--plot"),
+            png.as_os_str(),
+        ],
+    );
     let table = String::from_utf8(out.stdout).unwrap();
     eprintln!("{table}");
     eprintln!(
@@ -114,15 +113,7 @@ fn recovers_a_known_similarity_and_noise_on_v101_ground_truth() {
     assert_eq!(&png_bytes[..8], b"\x89PNG\r\n\x1a\n");
 
     // SE3 alignment cannot absorb the scale: much larger ATE, yet the same Sim3 scale is reported.
-    run_vidslam(&[
-        arg("eval"),
-        arg("--gt"),
-        gt_path.as_os_str(),
-        arg("--est"),
-        est_path.as_os_str(),
-        arg("--json"),
-        json_se3.as_os_str(),
-    ]);
+    eval_ok(&gt_path, &est_path, &[arg("--json"), json_se3.as_os_str()]);
     let r3 = read_json(&json_se3);
     assert_eq!(r3["align"], "se3");
     assert_eq!(num(&r3, "scale"), scale);
@@ -130,12 +121,29 @@ fn recovers_a_known_similarity_and_noise_on_v101_ground_truth() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `eval --gt GT --est EST EXTRA…`
+fn eval_args<'a>(gt: &'a Path, est: &'a Path, extra: &[&'a OsStr]) -> Vec<&'a OsStr> {
+    let mut args = vec![
+        OsStr::new("eval"),
+        OsStr::new("--gt"),
+        gt.as_os_str(),
+        OsStr::new("--est"),
+        est.as_os_str(),
+    ];
+    args.extend_from_slice(extra);
+    args
+}
+
+/// Runs `vidslam eval --gt GT --est EST EXTRA…`, which must succeed.
+fn eval_ok(gt: &Path, est: &Path, extra: &[&OsStr]) -> std::process::Output {
+    run_vidslam(&eval_args(gt, est, extra))
+}
+
 /// Runs `vidslam eval --gt GT --est EST EXTRA…`, which must fail; returns its stderr.
 fn eval_failure(gt: &Path, est: &Path, extra: &[&str]) -> String {
+    let extra: Vec<&OsStr> = extra.iter().map(OsStr::new).collect();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vidslam"))
-        .args([OsStr::new("eval"), OsStr::new("--gt"), gt.as_os_str()])
-        .args([OsStr::new("--est"), est.as_os_str()])
-        .args(extra)
+        .args(eval_args(gt, est, &extra))
         .output()
         .unwrap();
     assert!(!out.status.success());
@@ -188,17 +196,11 @@ fn segments_print_the_ate_of_each_phase_and_reject_unordered_cuts() {
     std::fs::write(&gt_path, gt).unwrap();
     std::fs::write(&est_path, est).unwrap();
     let arg = |s: &'static str| OsStr::new(s);
-    let out = run_vidslam(&[
-        arg("eval"),
-        arg("--gt"),
-        gt_path.as_os_str(),
-        arg("--est"),
-        est_path.as_os_str(),
-        arg("--align"),
-        arg("none"),
-        arg("--segments-s"),
-        arg("2"),
-    ]);
+    let out = eval_ok(
+        &gt_path,
+        &est_path,
+        &[arg("--align"), arg("none"), arg("--segments-s"), arg("2")],
+    );
     let table = String::from_utf8(out.stdout).unwrap();
     let row = |label: &str| {
         table

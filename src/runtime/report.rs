@@ -129,6 +129,7 @@ impl ReplayReport {
         map_ms.sort_by(f64::total_cmp);
         let mut imu_scale: Vec<f64> = out.imu_scale.iter().map(|e| e.scale).collect();
         imu_scale.sort_by(f64::total_cmp);
+        let imu_scale_pct = |p: f64| (!imu_scale.is_empty()).then(|| percentile(&imu_scale, p));
         let mut window_ms: Vec<f64> = out.window_solve_s.iter().map(|t| t * 1e3).collect();
         window_ms.sort_by(f64::total_cmp);
         let mut kb_ms: Vec<f64> = out.keyframe_bundle_s.iter().map(|t| t * 1e3).collect();
@@ -222,9 +223,9 @@ impl ReplayReport {
             refinements_discarded: out.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.catch_up_frames,
             imu_scale_estimates: imu_scale.len(),
-            imu_scale_p10: (!imu_scale.is_empty()).then(|| percentile(&imu_scale, 10.0)),
-            imu_scale_p50: (!imu_scale.is_empty()).then(|| percentile(&imu_scale, 50.0)),
-            imu_scale_p90: (!imu_scale.is_empty()).then(|| percentile(&imu_scale, 90.0)),
+            imu_scale_p10: imu_scale_pct(10.0),
+            imu_scale_p50: imu_scale_pct(50.0),
+            imu_scale_p90: imu_scale_pct(90.0),
             vignette_corrected: out.vignette_saturated_px.is_some(),
             vignette_saturated_px: out.vignette_saturated_px.unwrap_or(0),
             semidense_points: out
