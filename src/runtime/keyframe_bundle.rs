@@ -50,6 +50,15 @@ pub struct KeyframeBundleConfig {
     /// before the next frame is tracked): offline exactly, in real time at the earliest (later if
     /// the adjustment takes longer). Until then the previous keyframe is tracked.
     pub lag_frames: u64,
+    /// A keyframe installed with guessed depths (started in a turn on the spot, where nothing
+    /// could be triangulated) gets the scale of the map the mapper then builds for it from the
+    /// poses tracked against those guesses. It is adjusted once its views span this fraction of
+    /// its median depth, with its depths free of the mapper's (`depth_rel_std` not applied), and
+    /// the mapper's copy rescaled to match (0 = never).
+    pub guessed_min_baseline_ratio: f64,
+    /// At most this many of its views go into that adjustment (evenly spaced, the last one
+    /// included; the IMU is preintegrated across the frames left out).
+    pub guessed_max_views: usize,
 }
 
 impl Default for KeyframeBundleConfig {
@@ -64,6 +73,8 @@ impl Default for KeyframeBundleConfig {
             depth_rel_std: 0.05,
             imu_noise_factor: 0.1,
             lag_frames: 0,
+            guessed_min_baseline_ratio: 0.1,
+            guessed_max_views: 10,
         }
     }
 }
@@ -88,6 +99,8 @@ pub struct AdjustedKeyframe {
     pub views: Vec<FrameState>,
     /// Median relative change of the inverse depths.
     pub median_inv_depth_change: f64,
+    /// Median of adjusted / given inverse depth (the map's scale change is its inverse).
+    pub median_inv_depth_ratio: f64,
 }
 
 /// The host points of `kf`'s level-0 point set (rays, inverse depths, host intensities and
@@ -201,6 +214,7 @@ pub fn bundle_adjust_keyframe(
     let cam = kf.cameras.first()?;
     let given = &problem.host;
     let mut changes = Vec::with_capacity(given.rays.len());
+    let mut ratios = Vec::with_capacity(given.rays.len());
     let points: Vec<DepthPoint> = given
         .rays
         .iter()
@@ -212,6 +226,7 @@ pub fn bundle_adjust_keyframe(
             }
             let uv = cam.project(ray)?;
             changes.push(((rho - rho0) / rho0).abs());
+            ratios.push(rho / rho0);
             Some(DepthPoint {
                 u_px: uv.x as f32,
                 v_px: uv.y as f32,
@@ -224,10 +239,12 @@ pub fn bundle_adjust_keyframe(
     }
     let mid = changes.len() / 2;
     let median_inv_depth_change = *changes.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let median_inv_depth_ratio = *ratios.select_nth_unstable_by(mid, f64::total_cmp).1;
     Some(AdjustedKeyframe {
         points,
         views: r.views,
         median_inv_depth_change,
+        median_inv_depth_ratio,
     })
 }
 

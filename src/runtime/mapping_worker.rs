@@ -45,12 +45,17 @@ pub enum MapJob {
     },
     /// Another view of the current keyframe.
     Observe { seq: u64, frame: MapFrame },
+    /// Keyframe `id`'s inverse depths multiplied by `factor` (its adjustment found the scale of
+    /// the poses it was triangulated from off); ignored if `id` is no longer the current keyframe.
+    ScaleDepths { seq: u64, id: u32, factor: f64 },
 }
 
 impl MapJob {
     pub fn seq(&self) -> u64 {
         match self {
-            MapJob::NewKeyframe { seq, .. } | MapJob::Observe { seq, .. } => *seq,
+            MapJob::NewKeyframe { seq, .. }
+            | MapJob::Observe { seq, .. }
+            | MapJob::ScaleDepths { seq, .. } => *seq,
         }
     }
 }
@@ -204,6 +209,11 @@ fn run(
                     if frame.t > c.t {
                         c.forward_views += 1;
                     }
+                }
+            }
+            MapJob::ScaleDepths { id, factor, .. } => {
+                if let Some(c) = cur.as_mut().filter(|c| c.id == id) {
+                    c.kf.scale_inv_depths(factor);
                 }
             }
         }

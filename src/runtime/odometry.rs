@@ -296,6 +296,9 @@ pub struct OdometryStats {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub catch_up_frames: usize,
+    /// Scale change (new / old depths) of each keyframe tracked with guessed depths and then
+    /// adjusted with its depths free (`[keyframe_bundle] guessed_min_baseline_ratio`).
+    pub guessed_keyframe_scales: Vec<f64>,
     pub jobs_dropped: usize,
     /// The map scale measured against the IMU at each new keyframe (`[scale_observer]`).
     pub imu_scale: Vec<ScaleSample>,
@@ -327,6 +330,8 @@ enum PendingKind {
         unadjusted: Box<Keyframe>,
         /// Its snapshot.
         snapshot: MapSnapshot,
+        /// The keyframe is the one tracked (installed with guessed depths), not a new one.
+        tracked: bool,
     },
     Takeoff {
         /// The mapper's id of the first map being refined.
@@ -397,6 +402,13 @@ pub struct Odometry {
     /// The tracking keyframe's depths come from the keyframe adjustment (or will, once it is
     /// back): the mapper's refreshes of it are not installed.
     tracking_kf_adjusted: bool,
+    /// A keyframe installed with guessed depths and the frames tracked since it was started,
+    /// until they span a baseline (`[keyframe_bundle] guessed_min_baseline_ratio`) and it is
+    /// adjusted with its depths free: the map the mapper builds for it has the scale of poses
+    /// tracked against the guesses.
+    guessed: Option<KeyframeRecord>,
+    /// The snapshot of its map as last installed (`None` while only the guesses are).
+    guessed_snapshot: Option<MapSnapshot>,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
@@ -494,6 +506,8 @@ impl Odometry {
             takeoff: None,
             kf_record: None,
             tracking_kf_adjusted: false,
+            guessed: None,
+            guessed_snapshot: None,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
@@ -718,8 +732,15 @@ impl Odometry {
                         && self.pending_kf == Some(rec.id)
                     {
                         rec.views.push((frame.clone(), *self.tracker.state()));
+                    } else if let Some(rec) = self.guessed.as_mut()
+                        && self.pending_kf.is_none()
+                        && !self.reusing
+                        && self.tracking_kf == Some(rec.id)
+                    {
+                        rec.views.push((frame.clone(), *self.tracker.state()));
                     }
                     self.observe(frame.clone());
+                    self.adjust_guessed_keyframe();
                 }
             }
             Phase::Lost => {
@@ -919,11 +940,13 @@ impl Odometry {
             kf: kf.clone(),
             pyramid,
             imu,
+            free_depths: false,
         }));
         let kind = PendingKind::Keyframe {
             tracked_last,
             unadjusted: Box::new(kf),
             snapshot: s.clone(),
+            tracked: false,
         };
         self.send_refinement(job, kind).map_err(|kind| match *kind {
             PendingKind::Keyframe { unadjusted, .. } => unadjusted,
@@ -1011,6 +1034,7 @@ impl Odometry {
                         PendingKind::Keyframe {
                             unadjusted,
                             snapshot,
+                            tracked: false,
                             ..
                         },
                     ..
@@ -1037,11 +1061,11 @@ impl Odometry {
                     tracked_last,
                     unadjusted,
                     snapshot,
+                    tracked,
                 },
             ) => self.apply_keyframe_adjustment(
                 adjusted,
-                *unadjusted,
-                &snapshot,
+                (*unadjusted, &snapshot, tracked),
                 &tracked_last,
                 &catch_up,
                 o.time_s,
@@ -1066,21 +1090,59 @@ impl Odometry {
     fn apply_keyframe_adjustment(
         &mut self,
         adjusted: Option<ReadyKeyframe>,
-        unadjusted: Keyframe,
-        snapshot: &MapSnapshot,
+        (unadjusted, snapshot, tracked): (Keyframe, &MapSnapshot, bool),
         tracked_last: &FrameState,
         catch_up: &[(TimeNs, Arc<Image<u8>>)],
         time_s: f64,
     ) {
-        if !(self.phase == Phase::Tracking && self.pending_kf == Some(snapshot.keyframe_id)) {
+        let id = snapshot.keyframe_id;
+        let current = if tracked {
+            self.pending_kf.is_none() && self.tracking_kf == Some(id) && !self.reusing
+        } else {
+            self.pending_kf == Some(id)
+        };
+        if !(self.phase == Phase::Tracking && current) {
             self.stats.refinements_discarded += 1; // lost meanwhile
             return;
         }
-        let Some(a) = adjusted.filter(|a| a.last_view.is_finite()) else {
-            self.install_keyframe(unadjusted, snapshot, true, false, false);
+        let Some(a) = adjusted.filter(|a| {
+            a.last_view.is_finite()
+                && a.median_inv_depth_ratio.is_finite()
+                && a.median_inv_depth_ratio > 0.0
+        }) else {
+            if !tracked {
+                self.install_keyframe(unadjusted, snapshot, true, false, false);
+            }
             return;
         };
-        self.install_keyframe(a.keyframe, snapshot, true, false, true);
+        if tracked {
+            // The whole keyframe was mapped at the scale of the guesses: the mapper's copy, the
+            // installed map and the frames kept for the next keyframe are rescaled about its
+            // camera with the adjustment's median change (the tracker continues from the last
+            // view's adjusted state below).
+            let factor = a.median_inv_depth_ratio;
+            let seq = self.next_seq();
+            self.send(MapJob::ScaleDepths { seq, id, factor });
+            let centre = unadjusted.t_world_cam.translation.vector;
+            for h in self.history.iter_mut() {
+                let p = &mut h.t_world_cam.translation.vector;
+                *p = centre + (*p - centre) / factor;
+            }
+            let mut map = (*snapshot.map).clone();
+            for p in &mut map.points {
+                p.inv_depth_m_inv *= factor as f32;
+                p.inv_depth_std_m_inv *= factor as f32;
+            }
+            let snapshot = MapSnapshot {
+                map: Arc::new(map),
+                ..snapshot.clone()
+            };
+            self.install_keyframe(a.keyframe, &snapshot, false, false, true);
+            self.tracking_kf_adjusted = true;
+            self.stats.guessed_keyframe_scales.push(1.0 / factor);
+        } else {
+            self.install_keyframe(a.keyframe, snapshot, true, false, true);
+        }
         let cov = *self.tracker.covariance();
         if catch_up.len() < MAX_CATCH_UP_FRAMES {
             let state_now = *self.tracker.state();
@@ -1460,6 +1522,74 @@ impl Odometry {
         });
     }
 
+    /// Hands the tracked keyframe installed with guessed depths (`guessed`) to the keyframe
+    /// adjustment, depths free, once the mapper has built its map and the frames tracked since it
+    /// was started span `[keyframe_bundle] guessed_min_baseline_ratio` × its median depth (at most
+    /// `guessed_max_views` of them, evenly spaced). Those frames were tracked against guesses,
+    /// and the map against them: the IMU between them is what gives the keyframe its scale.
+    fn adjust_guessed_keyframe(&mut self) {
+        let Some(rec) = &self.guessed else { return };
+        if self.tracking_kf != Some(rec.id) || self.reusing || self.phase != Phase::Tracking {
+            self.guessed = None;
+            self.guessed_snapshot = None;
+            return;
+        }
+        let cfg = &self.cfg.keyframe_bundle;
+        let Some(kf) = self.tracker.keyframe() else {
+            return;
+        };
+        let span_m = rec
+            .views
+            .iter()
+            .map(|(_, x)| (x.nav.p_world_m - rec.start.nav.p_world_m).norm())
+            .fold(0.0, f64::max);
+        if self.tracking_kf_filled
+            || self.guessed_snapshot.is_none()
+            || self.pending_kf.is_some()
+            || self.refining.is_some()
+            || rec.views.len() < cfg.min_views.max(1)
+            || span_m < cfg.guessed_min_baseline_ratio * kf.median_depth_m
+        {
+            return;
+        }
+        let kf = kf.clone();
+        let max_views = cfg.guessed_max_views.max(1);
+        let (Some(mut rec), Some(s)) = (self.guessed.take(), self.guessed_snapshot.take()) else {
+            return;
+        };
+        let n = rec.views.len();
+        if n > max_views {
+            // Evenly spaced, the newest included.
+            let keep: Vec<usize> = (1..=max_views).map(|k| k * n / max_views - 1).collect();
+            rec.views = keep.into_iter().map(|i| rec.views[i].clone()).collect();
+        }
+        let Some(tracked_last) = rec.views.last().map(|v| v.1) else {
+            return;
+        };
+        let imu = imu_between(
+            self.imu.make_contiguous(),
+            rec.start.nav.t,
+            Some(tracked_last.nav.t),
+        );
+        let pyramid = Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
+        self.refine_seq += 1;
+        let job = RefineJob::Keyframe(Box::new(KeyframeJob {
+            seq: self.refine_seq,
+            rec,
+            kf: kf.clone(),
+            pyramid,
+            imu,
+            free_depths: true,
+        }));
+        let kind = PendingKind::Keyframe {
+            tracked_last,
+            unadjusted: Box::new(kf),
+            snapshot: s,
+            tracked: true,
+        };
+        let _ = self.send_refinement(job, kind);
+    }
+
     /// The keyframe whose adjustment is under way, if any.
     fn adjusting_keyframe(&self) -> Option<u32> {
         match &self.refining.as_ref()?.kind {
@@ -1523,9 +1653,9 @@ impl Odometry {
             .refining
             .as_ref()
             .is_some_and(|p| matches!(p.kind, PendingKind::Takeoff { .. }))
-            || (is_new && self.adjusting_keyframe() == Some(s.keyframe_id))
+            || self.adjusting_keyframe() == Some(s.keyframe_id)
         {
-            // The first map is waiting for its take-off refinement, the new keyframe for its
+            // The first map is waiting for its take-off refinement, the keyframe for its
             // adjustment.
             return;
         }
@@ -1669,6 +1799,15 @@ impl Odometry {
         }
         if n > 0 && !filled {
             self.last_median_inv_depth = Some((1.0 / kf_median_depth_m) as f32);
+        }
+        if is_new {
+            self.guessed_snapshot = None;
+            self.guessed = (filled && self.cfg.keyframe_bundle.guessed_min_baseline_ratio > 0.0)
+                .then(|| self.kf_record.take())
+                .flatten()
+                .filter(|r| r.id == s.keyframe_id);
+        } else if !filled && self.guessed.as_ref().is_some_and(|r| r.id == s.keyframe_id) {
+            self.guessed_snapshot = Some(s.clone());
         }
         self.tracking_map = Some(s.map.clone());
         self.tracking_kf_filled = filled;

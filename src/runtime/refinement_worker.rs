@@ -51,6 +51,9 @@ pub struct KeyframeJob {
     pub pyramid: Pyramid,
     /// IMU samples from before the keyframe to after its last view.
     pub imu: Vec<ImuSample>,
+    /// The depths are not held to the mapper's (`depth_rel_std` not applied): their scale is what
+    /// is in doubt (a keyframe tracked with guessed depths).
+    pub free_depths: bool,
 }
 
 /// One refinement pass of the take-off.
@@ -90,6 +93,8 @@ pub struct ReadyKeyframe {
     pub last_view: FrameState,
     /// Median relative change of the inverse depths.
     pub median_inv_depth_change: f64,
+    /// Median of adjusted / given inverse depth.
+    pub median_inv_depth_ratio: f64,
 }
 
 /// The fixed inputs of every job.
@@ -183,6 +188,16 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
 }
 
 fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyframe> {
+    let free;
+    let cfg = if job.free_depths {
+        free = KeyframeBundleConfig {
+            depth_rel_std: 0.0,
+            ..s.keyframe_bundle.clone()
+        };
+        &free
+    } else {
+        &s.keyframe_bundle
+    };
     let a = bundle_adjust_keyframe(
         &job.rec,
         &job.kf,
@@ -192,7 +207,7 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyfram
         s.noise,
         s.tracking.imu_noise_scale,
         s.tracking.gradient_weight_gray_px,
-        &s.keyframe_bundle,
+        cfg,
     )?;
     let last_view = *a.views.last()?;
     let keyframe = Keyframe::new(
@@ -208,6 +223,7 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyfram
         keyframe,
         last_view,
         median_inv_depth_change: a.median_inv_depth_change,
+        median_inv_depth_ratio: a.median_inv_depth_ratio,
     })
 }
 

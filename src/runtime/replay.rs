@@ -177,6 +177,9 @@ pub struct ReplayOutput {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub catch_up_frames: usize,
+    /// Scale change of each keyframe tracked with guessed depths, then adjusted with its depths
+    /// free (`[keyframe_bundle] guessed_min_baseline_ratio`).
+    pub guessed_keyframe_scales: Vec<f64>,
     /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
     pub vignette_saturated_px: Option<u64>,
 }
@@ -332,6 +335,7 @@ fn replay_full(
     out.refinements_dropped = stats.refinements_dropped;
     out.refinements_discarded = stats.refinements_discarded;
     out.catch_up_frames = stats.catch_up_frames;
+    out.guessed_keyframe_scales = stats.guessed_keyframe_scales;
     out.vignette_saturated_px = stats
         .vignette_corrected
         .then_some(stats.vignette_saturated_px);

@@ -85,6 +85,11 @@ pub struct ReplayReport {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub keyframe_bundle_catch_up_frames: usize,
+    /// Keyframes started in a turn on the spot, tracked with guessed depths while the mapper
+    /// triangulated them from the poses tracked so, then adjusted with their depths free once
+    /// their views spanned a baseline: the factor each one's depths were scaled by (adjusted /
+    /// as mapped; 1 = the guesses' scale was right).
+    pub guessed_keyframe_scales: Vec<f64>,
     /// The map scale measured against the IMU without ground truth (`[scale_observer]`: the
     /// factor from the tracked to the metric trajectory over the seconds before each new
     /// keyframe; 1 = consistent): how many estimates, and their 10th / 50th / 90th percentiles.
@@ -222,6 +227,7 @@ impl ReplayReport {
             refinements_dropped: out.refinements_dropped,
             refinements_discarded: out.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.catch_up_frames,
+            guessed_keyframe_scales: out.guessed_keyframe_scales.clone(),
             imu_scale_estimates: imu_scale.len(),
             imu_scale_p10: imu_scale_pct(10.0),
             imu_scale_p50: imu_scale_pct(50.0),
@@ -432,6 +438,14 @@ impl ReplayReport {
                     self.refinements_discarded
                 ),
             );
+        }
+        if !self.guessed_keyframe_scales.is_empty() {
+            let scales: Vec<String> = self
+                .guessed_keyframe_scales
+                .iter()
+                .map(|s| format!("{s:.3}"))
+                .collect();
+            row("guessed keyframes rescaled", scales.join(", "));
         }
         if let Some(e) = &self.eval {
             row("ATE RMSE (SE3)", format!("{:.4} m", e.ate_rmse_m));

@@ -291,6 +291,30 @@ impl SemidenseKeyframe {
         }
     }
 
+    /// Multiplies every inverse-depth estimate (and its standard deviation, and the prior) by
+    /// `factor`: the keyframe's structure scaled about its camera by `1 / factor`, as when the
+    /// odometry has found the scale of the poses it was triangulated from to be off. Relative
+    /// consistency is unchanged, so every pixel keeps its run. A factor that is not finite and
+    /// positive is ignored.
+    pub fn scale_inv_depths(&mut self, factor: f64) {
+        if !(factor.is_finite() && factor > 0.0) {
+            return;
+        }
+        let f = factor as f32;
+        let scale = |e: &mut Estimate| {
+            e.rho *= f;
+            e.sigma *= f;
+        };
+        for st in &mut self.states {
+            let n = st.count as usize;
+            st.estimates[..n].iter_mut().for_each(scale);
+            if let Some(p) = st.prior.as_mut() {
+                scale(p);
+            }
+            st.refuse(&self.cfg);
+        }
+    }
+
     /// Seeds pixels from the finished map of an earlier keyframe (propagation): each point is moved
     /// into this keyframe and becomes the prior of the candidate it lands on (and of its 3x3
     /// neighbours that have none closer), which bounds that pixel's search and counts as one vote.

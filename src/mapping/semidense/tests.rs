@@ -379,3 +379,69 @@ fn map_points_lie_on_the_plane_in_3d() {
         d[d.len() / 2]
     );
 }
+
+#[test]
+fn a_keyframe_triangulated_at_the_wrong_scale_is_rescaled_and_fuses_metric_views() {
+    let cam = camera();
+    let plane = scene();
+    let cfg = SemidenseConfig::default();
+    // The views' poses as a tracker with a 30 % too long baseline reports them: the map comes out
+    // 30 % too deep (inverse depths 1/1.3 of the truth).
+    let scaled = |k: i32| {
+        let p = pose(k);
+        Isometry3::from_parts(Translation3::from(p.translation.vector * 1.3), p.rotation)
+    };
+    let mut kf = SemidenseKeyframe::new(
+        &plane.render(&cam, &pose(0), 1.0, 0.0),
+        &cam,
+        &pose(0),
+        &cfg,
+    );
+    for k in [1, -1, 2, -2, 3, -3] {
+        kf.observe(&plane.render(&cam, &pose(k), 1.0, 0.0), &scaled(k));
+    }
+    let before = kf.map();
+    let ratio = |m: &SemidenseMap| {
+        let mut r: Vec<f64> = m
+            .points
+            .iter()
+            .map(|p| {
+                let want = plane.inv_depth(&m.camera, &m.t_world_cam, p.u_px as f64, p.v_px as f64);
+                p.inv_depth_m_inv as f64 / want
+            })
+            .collect();
+        r.sort_by(f64::total_cmp);
+        r[r.len() / 2]
+    };
+    assert!(before.points.len() > 2000, "{} points", before.points.len());
+    assert!(
+        (ratio(&before) - 1.0 / 1.3).abs() < 0.01,
+        "{}",
+        ratio(&before)
+    );
+    // Ignored: not a scale.
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        kf.scale_inv_depths(bad);
+    }
+    assert_eq!(kf.map(), before);
+    kf.scale_inv_depths(1.3);
+    let rescaled = kf.map();
+    assert_eq!(rescaled.points.len(), before.points.len());
+    for (a, b) in rescaled.points.iter().zip(&before.points) {
+        assert!((a.inv_depth_m_inv / b.inv_depth_m_inv - 1.3).abs() < 1e-4);
+        assert!((a.inv_depth_std_m_inv / b.inv_depth_std_m_inv - 1.3).abs() < 1e-4);
+    }
+    // Views at the true (metric) poses now agree with the map instead of splitting it.
+    for k in [4, -4] {
+        let s = kf.observe(&plane.render(&cam, &pose(k), 1.0, 0.0), &pose(k));
+        assert!(s.matched > s.candidates / 3, "view {k}: {s:?}");
+    }
+    let after = kf.map();
+    assert!(
+        after.points.len() >= before.points.len(),
+        "{} points",
+        after.points.len()
+    );
+    let e = relative_errors(&plane, &after);
+    assert!(e[e.len() / 2] < 0.01, "median {}", e[e.len() / 2]);
+}
