@@ -123,6 +123,11 @@ pub struct BootstrapConfig {
     /// started (0 = before the next frame): offline exactly, in real time at the earliest (later
     /// if it takes longer). Until then the frames are dead-reckoned.
     pub takeoff_lag_frames: u64,
+    /// A refinement pass is not started over more take-off frames than this (the first map is
+    /// then installed as it is): a pass costs ~0.1 s per frame, and in real time the second
+    /// pass, started once the first is back and the map rebuilt, would cover 60 frames and take
+    /// longer than the first map may wait (offline the passes cover 13–20 frames).
+    pub takeoff_max_pass_frames: usize,
     /// Prior standard deviation of the velocity at the rest state, m/s.
     pub takeoff_velocity_std_m_s: f64,
     /// Prior standard deviation of the dead reckoning's world acceleration error, m/s².
@@ -189,6 +194,7 @@ impl Default for BootstrapConfig {
             fill_max_baseline_ratio: 0.03,
             refine_takeoff_passes: 2,
             takeoff_lag_frames: 0,
+            takeoff_max_pass_frames: 30,
             takeoff_velocity_std_m_s: 0.01,
             takeoff_accel_std_m_s2: 0.05,
             takeoff_position_std_m: 0.005,
@@ -379,6 +385,11 @@ pub struct Odometry {
     reusing: bool,
     /// The mapper's keyframe left for a stored one (returned to if the stored one fails).
     left_kf: Option<StoredKeyframe>,
+    /// The stored keyframe tracked before the one now on probation, when the switch was from
+    /// one stored keyframe to another that had passed its probation and was still tracking
+    /// (`[reuse] probation_min_inlier_ratio` on the last frame): gone back to, on probation
+    /// again, if the new one fails.
+    reuse_previous: Option<StoredKeyframe>,
     /// Frames tracked since the last switch to a stored keyframe.
     reuse_frames: u32,
     /// Stored keyframes that failed since the last new keyframe was installed.
@@ -492,6 +503,7 @@ impl Odometry {
             pending_kf: None,
             reusing: false,
             left_kf: None,
+            reuse_previous: None,
             failed_reuse: Vec::new(),
             reuse_frames: 0,
             store: KeyframeStore::new(cfg.reuse.clone()),
@@ -648,7 +660,11 @@ impl Odometry {
             Phase::Initializing => {
                 result.flag = None; // IMU-only while the first map grows: expected, not a failure
                 let started = self.init_started.unwrap_or(t);
-                if self.newest_kf.is_none() || t.secs_since(started) > self.cfg.bootstrap.max_init_s
+                // (Not while the first map is out for its take-off refinement: it has structure,
+                // and in real time a pass over all the take-off's frames takes seconds.)
+                if self.newest_kf.is_none()
+                    || (t.secs_since(started) > self.cfg.bootstrap.max_init_s
+                        && !self.refining_takeoff(None))
                 {
                     // Not enough structure yet: restart the first map from here (no longer a
                     // take-off from rest).
@@ -704,6 +720,7 @@ impl Odometry {
                 } else if result.wants_keyframe
                     && result.flag.is_none()
                     && self.pending_kf.is_none()
+                    && !self.awaiting_guessed_adjustment()
                 {
                     // (A keyframe already pending in the mapper is awaited, not replaced.)
                     let mut frame = frame.clone();
@@ -861,7 +878,10 @@ impl Odometry {
         let Some(tk) = self.takeoff.as_ref().filter(|_| self.refiner.is_some()) else {
             return false;
         };
-        if tk.keyframe_id != s.keyframe_id || tk.passes >= b.refine_takeoff_passes {
+        if tk.keyframe_id != s.keyframe_id
+            || tk.passes >= b.refine_takeoff_passes
+            || tk.frames.len() > b.takeoff_max_pass_frames
+        {
             return false; // done
         }
         let imu = imu_between(self.imu.make_contiguous(), tk.rest.nav.t, None);
@@ -1229,6 +1249,8 @@ impl Odometry {
         tk.passes += 1;
         tk.frames = views.clone();
         self.start_keyframe(tk.keyframe.clone(), views, false);
+        // The first map starts again: it gets the whole `max_init_s` to grow.
+        self.init_started = self.last_t;
         self.stats.takeoff_scales.push(r.scale);
         self.stats.takeoff_refinement_s.push(time_s);
         self.takeoff = Some(tk);
@@ -1346,6 +1368,7 @@ impl Odometry {
         self.tracking_kf = None;
         self.tracking_map = None;
         self.reusing = false;
+        self.reuse_previous = None;
     }
 
     /// The tracker asks for a new keyframe: if a stored keyframe (not the one tracked, not one
@@ -1370,12 +1393,17 @@ impl Odometry {
         let Some(stored) = self.store.get(id).cloned() else {
             return false;
         };
+        let previous_fits = self.reuse_frames > self.cfg.reuse.probation_frames
+            && self.last_inlier_ratio >= self.cfg.reuse.probation_min_inlier_ratio;
         let previous = self.tracker.set_keyframe(stored.kf);
-        if !self.reusing
-            && let (Some(kf), Some(map)) = (previous, self.tracking_map.take())
-        {
-            self.store_keyframe(kf.clone(), map.clone());
-            self.left_kf = Some(StoredKeyframe { kf, map });
+        self.reuse_previous = None;
+        if let (Some(kf), Some(map)) = (previous, self.tracking_map.take()) {
+            if !self.reusing {
+                self.store_keyframe(kf.clone(), map.clone());
+                self.left_kf = Some(StoredKeyframe { kf, map });
+            } else if previous_fits {
+                self.reuse_previous = Some(StoredKeyframe { kf, map });
+            }
         }
         self.tracking_map = Some(stored.map);
         self.tracking_kf = Some(id);
@@ -1421,6 +1449,19 @@ impl Odometry {
             self.failed_reuse.push(id);
         }
         self.stats.keyframe_reuse_failures += 1;
+        if let Some(s) = self.reuse_previous.take() {
+            // Back to the stored keyframe tracked before (still reusing, on probation again):
+            // after a chain of stored keyframes the one left in the chain of new keyframes may
+            // be seconds behind and out of view.
+            self.tracking_kf = Some(s.kf.id);
+            self.tracker.set_keyframe(s.kf);
+            self.tracking_map = Some(s.map);
+            self.reuse_frames = 0;
+            self.history.clear();
+            self.keyframe_jump = true;
+            self.consecutive_flagged = 0;
+            return;
+        }
         match self.left_kf.take() {
             Some(s) => {
                 self.tracking_kf = Some(s.kf.id);
@@ -1590,6 +1631,26 @@ impl Odometry {
         let _ = self.send_refinement(job, kind);
     }
 
+    /// The tracked keyframe's adjustment with its depths free is under way (real time: it takes
+    /// ~1 s) and the keyframe still tracks well: no new keyframe is started until it is back —
+    /// one started now would be mapped at the scale the adjustment is about to correct, and the
+    /// adjustment would be discarded as superseded. (Offline it is back before the next frame.)
+    fn awaiting_guessed_adjustment(&self) -> bool {
+        self.last_inlier_ratio >= self.cfg.bootstrap.urgent_inlier_ratio
+            && self
+                .refining
+                .as_ref()
+                .is_some_and(|p| matches!(p.kind, PendingKind::Keyframe { tracked: true, .. }))
+    }
+
+    /// A take-off refinement pass is under way (of first map `id`, if given).
+    fn refining_takeoff(&self, id: Option<u32>) -> bool {
+        self.refining.as_ref().is_some_and(|p| match p.kind {
+            PendingKind::Takeoff { keyframe_id, .. } => id.is_none_or(|id| id == keyframe_id),
+            PendingKind::Keyframe { .. } => false,
+        })
+    }
+
     /// The keyframe whose adjustment is under way, if any.
     fn adjusting_keyframe(&self) -> Option<u32> {
         match &self.refining.as_ref()?.kind {
@@ -1649,10 +1710,7 @@ impl Odometry {
         if !(is_new || is_refresh) {
             return; // a keyframe that has been superseded already, or left for a stored one
         }
-        if self
-            .refining
-            .as_ref()
-            .is_some_and(|p| matches!(p.kind, PendingKind::Takeoff { .. }))
+        if self.refining_takeoff(Some(s.keyframe_id))
             || self.adjusting_keyframe() == Some(s.keyframe_id)
         {
             // The first map is waiting for its take-off refinement, the keyframe for its
@@ -1795,6 +1853,7 @@ impl Odometry {
             self.pending_kf = None;
             self.reusing = false;
             self.left_kf = None;
+            self.reuse_previous = None;
             self.failed_reuse.clear();
         }
         if n > 0 && !filled {
