@@ -945,6 +945,21 @@ impl Odometry {
         let Some(rec) = self.kf_record.take() else {
             return Err(Box::new(kf));
         };
+        self.send_keyframe_job(rec, kf, pyramid, s.clone(), false)
+    }
+
+    /// Hands keyframe `kf` (image pyramid `pyramid`, snapshot `s`) with the views of `rec` to the
+    /// keyframe adjustment: a new keyframe, or the `tracked` one installed with guessed depths
+    /// (adjusted with its depths free). `Err(kf)` if it was not sent (no views, or the thread busy
+    /// in real time).
+    fn send_keyframe_job(
+        &mut self,
+        rec: KeyframeRecord,
+        kf: Keyframe,
+        pyramid: Pyramid,
+        s: MapSnapshot,
+        tracked: bool,
+    ) -> Result<(), Box<Keyframe>> {
         let Some(tracked_last) = rec.views.last().map(|v| v.1) else {
             return Err(Box::new(kf));
         };
@@ -960,13 +975,13 @@ impl Odometry {
             kf: kf.clone(),
             pyramid,
             imu,
-            free_depths: false,
+            free_depths: tracked,
         }));
         let kind = PendingKind::Keyframe {
             tracked_last,
             unadjusted: Box::new(kf),
-            snapshot: s.clone(),
-            tracked: false,
+            snapshot: s,
+            tracked,
         };
         self.send_refinement(job, kind).map_err(|kind| match *kind {
             PendingKind::Keyframe { unadjusted, .. } => unadjusted,
@@ -1149,10 +1164,7 @@ impl Odometry {
                 *p = centre + (*p - centre) / factor;
             }
             let mut map = (*snapshot.map).clone();
-            for p in &mut map.points {
-                p.inv_depth_m_inv *= factor as f32;
-                p.inv_depth_std_m_inv *= factor as f32;
-            }
+            map.scale_inv_depths(factor);
             let snapshot = MapSnapshot {
                 map: Arc::new(map),
                 ..snapshot.clone()
@@ -1453,24 +1465,14 @@ impl Odometry {
             // Back to the stored keyframe tracked before (still reusing, on probation again):
             // after a chain of stored keyframes the one left in the chain of new keyframes may
             // be seconds behind and out of view.
-            self.tracking_kf = Some(s.kf.id);
-            self.tracker.set_keyframe(s.kf);
-            self.tracking_map = Some(s.map);
+            self.track_again(s);
             self.reuse_frames = 0;
-            self.history.clear();
-            self.keyframe_jump = true;
-            self.consecutive_flagged = 0;
             return;
         }
         match self.left_kf.take() {
             Some(s) => {
-                self.tracking_kf = Some(s.kf.id);
-                self.tracker.set_keyframe(s.kf);
-                self.tracking_map = Some(s.map);
+                self.track_again(s);
                 self.reusing = false;
-                self.history.clear();
-                self.keyframe_jump = true;
-                self.consecutive_flagged = 0;
             }
             None => {
                 // (Not reached: a switch always leaves a keyframe behind.)
@@ -1479,6 +1481,16 @@ impl Odometry {
                 self.stats.resets += 1;
             }
         }
+    }
+
+    /// Tracks keyframe `s` again (gone back to after a stored keyframe failed).
+    fn track_again(&mut self, s: StoredKeyframe) {
+        self.tracking_kf = Some(s.kf.id);
+        self.tracker.set_keyframe(s.kf);
+        self.tracking_map = Some(s.map);
+        self.history.clear();
+        self.keyframe_jump = true;
+        self.consecutive_flagged = 0;
     }
 
     fn imu_only_result(&self, t: TimeNs) -> TrackResult {
@@ -1604,31 +1616,9 @@ impl Odometry {
             let keep: Vec<usize> = (1..=max_views).map(|k| k * n / max_views - 1).collect();
             rec.views = keep.into_iter().map(|i| rec.views[i].clone()).collect();
         }
-        let Some(tracked_last) = rec.views.last().map(|v| v.1) else {
-            return;
-        };
-        let imu = imu_between(
-            self.imu.make_contiguous(),
-            rec.start.nav.t,
-            Some(tracked_last.nav.t),
-        );
         let pyramid = Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
-        self.refine_seq += 1;
-        let job = RefineJob::Keyframe(Box::new(KeyframeJob {
-            seq: self.refine_seq,
-            rec,
-            kf: kf.clone(),
-            pyramid,
-            imu,
-            free_depths: true,
-        }));
-        let kind = PendingKind::Keyframe {
-            tracked_last,
-            unadjusted: Box::new(kf),
-            snapshot: s,
-            tracked: true,
-        };
-        let _ = self.send_refinement(job, kind);
+        // (Not sent — real time, thread busy: the keyframe stays as the mapper built it.)
+        let _ = self.send_keyframe_job(rec, kf, pyramid, s, true);
     }
 
     /// The tracked keyframe's adjustment with its depths free is under way (real time: it takes

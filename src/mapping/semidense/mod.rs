@@ -230,6 +230,18 @@ pub struct SemidenseMap {
     pub points: Vec<MapPoint>,
 }
 
+impl SemidenseMap {
+    /// Every point's inverse depth and its standard deviation multiplied by `factor` (the map
+    /// scaled about the keyframe's camera by `1 / factor`; as
+    /// [`SemidenseKeyframe::scale_inv_depths`] does to the estimates it is built from).
+    pub fn scale_inv_depths(&mut self, factor: f64) {
+        for p in &mut self.points {
+            p.inv_depth_m_inv *= factor as f32;
+            p.inv_depth_std_m_inv *= factor as f32;
+        }
+    }
+}
+
 /// One semidense point of a keyframe.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MapPoint {

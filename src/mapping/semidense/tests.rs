@@ -150,21 +150,27 @@ fn textured_plane_inverse_depth_is_recovered() {
     }
 }
 
+/// The keyframe at pose 0 after the six views at poses ±1, ±2, ±3 (rendered there, each given
+/// to the mapper at `reported(k)`).
+fn keyframe_after_six_views(
+    cam: &CameraModel,
+    plane: &Plane,
+    cfg: &SemidenseConfig,
+    reported: impl Fn(i32) -> Isometry3<f64>,
+) -> SemidenseKeyframe {
+    let mut kf = SemidenseKeyframe::new(&plane.render(cam, &pose(0), 1.0, 0.0), cam, &pose(0), cfg);
+    for k in [1, -1, 2, -2, 3, -3] {
+        kf.observe(&plane.render(cam, &pose(k), 1.0, 0.0), &reported(k));
+    }
+    kf
+}
+
 #[test]
 fn propagation_seeds_the_next_keyframe() {
     let cam = camera();
     let plane = scene();
     let cfg = SemidenseConfig::default();
-    let mut kf = SemidenseKeyframe::new(
-        &plane.render(&cam, &pose(0), 1.0, 0.0),
-        &cam,
-        &pose(0),
-        &cfg,
-    );
-    for k in [1, -1, 2, -2, 3, -3] {
-        kf.observe(&plane.render(&cam, &pose(k), 1.0, 0.0), &pose(k));
-    }
-    let map = kf.map();
+    let map = keyframe_after_six_views(&cam, &plane, &cfg, pose).map();
     // The next keyframe at pose 2, with two views: only the seeded one has points.
     let kf2_pose = pose(2);
     let kf2_image = plane.render(&cam, &kf2_pose, 1.0, 0.0);
@@ -391,15 +397,7 @@ fn a_keyframe_triangulated_at_the_wrong_scale_is_rescaled_and_fuses_metric_views
         let p = pose(k);
         Isometry3::from_parts(Translation3::from(p.translation.vector * 1.3), p.rotation)
     };
-    let mut kf = SemidenseKeyframe::new(
-        &plane.render(&cam, &pose(0), 1.0, 0.0),
-        &cam,
-        &pose(0),
-        &cfg,
-    );
-    for k in [1, -1, 2, -2, 3, -3] {
-        kf.observe(&plane.render(&cam, &pose(k), 1.0, 0.0), &scaled(k));
-    }
+    let mut kf = keyframe_after_six_views(&cam, &plane, &cfg, scaled);
     let before = kf.map();
     let ratio = |m: &SemidenseMap| {
         let mut r: Vec<f64> = m
