@@ -14,6 +14,7 @@ use crate::mapping::semidense::{SemidenseConfig, SemidenseKeyframe, SemidenseMap
 use crate::time::TimeNs;
 use crossbeam_channel::{Receiver, Sender, bounded};
 use nalgebra::{Isometry3, Point3};
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Instant;
@@ -85,6 +86,8 @@ pub struct MappingOutput {
     pub keyframe_times: Vec<TimeNs>,
     /// Time per job, s.
     pub job_times_s: Vec<f64>,
+    /// Real time: views of the keyframe the mapper skipped to keep up ([`MappingOptions`]).
+    pub views_skipped: usize,
 }
 
 impl MappingOutput {
@@ -106,6 +109,22 @@ impl MappingOutput {
     }
 }
 
+/// How the mapping thread runs.
+#[derive(Clone, Copy, Debug)]
+pub struct MappingOptions {
+    /// Length of the job and snapshot queues.
+    pub queue_len: usize,
+    /// Real time: each time the mapper is free it takes every job waiting, drops the views
+    /// (`Observe`) queued before a new keyframe (they would refine a keyframe already replaced)
+    /// and keeps only the newest `max_view_backlog` views of the current one — the map follows the
+    /// camera instead of a backlog. Offline every job is done, in order (deterministic).
+    pub realtime: bool,
+    /// Views kept waiting in real time (at least 1).
+    pub max_view_backlog: usize,
+    /// The thread's nice value is raised by this much ([`super::thread_priority`]).
+    pub nice_increment: i32,
+}
+
 /// Handle of a running mapping thread.
 pub struct MappingThread {
     pub jobs: Sender<MapJob>,
@@ -114,13 +133,17 @@ pub struct MappingThread {
 }
 
 impl MappingThread {
-    /// Starts the thread; queues hold `queue_len` jobs / snapshots.
-    pub fn spawn(cfg: SemidenseConfig, camera: CameraModel, queue_len: usize) -> Self {
+    /// Starts the thread.
+    pub fn spawn(cfg: SemidenseConfig, camera: CameraModel, opts: MappingOptions) -> Self {
+        let queue_len = opts.queue_len.max(1);
         let (jtx, jrx) = bounded::<MapJob>(queue_len);
         let (stx, srx) = bounded::<MapSnapshot>(queue_len);
         let join = std::thread::Builder::new()
             .name("vidslam-mapping".into())
-            .spawn(move || run(cfg, camera, jrx, stx))
+            .spawn(move || {
+                super::thread_priority::lower_current_thread(opts.nice_increment);
+                run(cfg, camera, opts, jrx, stx)
+            })
             .expect("spawn the mapping thread");
         MappingThread {
             jobs: jtx,
@@ -150,16 +173,59 @@ struct Current {
     forward_views: usize,
 }
 
+/// Real time: drops the views waiting before the last new keyframe and all but the newest
+/// `max_views` views after it. Returns how many were dropped.
+fn thin_backlog(backlog: &mut VecDeque<MapJob>, max_views: usize) -> usize {
+    let before = backlog.len();
+    let last_new = backlog
+        .iter()
+        .rposition(|j| matches!(j, MapJob::NewKeyframe { .. }));
+    let mut views_after = backlog
+        .iter()
+        .skip(last_new.map_or(0, |i| i + 1))
+        .filter(|j| matches!(j, MapJob::Observe { .. }))
+        .count();
+    let mut i = 0;
+    backlog.retain(|j| {
+        let keep = match j {
+            MapJob::Observe { .. } if last_new.is_some_and(|n| i < n) => false,
+            MapJob::Observe { .. } if views_after > max_views.max(1) => {
+                views_after -= 1;
+                false
+            }
+            _ => true,
+        };
+        i += 1;
+        keep
+    });
+    before - backlog.len()
+}
+
 fn run(
     cfg: SemidenseConfig,
     camera: CameraModel,
+    opts: MappingOptions,
     jobs: Receiver<MapJob>,
     snapshots: Sender<MapSnapshot>,
 ) -> MappingOutput {
     let mut out = MappingOutput::default();
     let mut cur: Option<Current> = None;
     let mut scratch = Image::<f32>::new(camera.width, camera.height);
-    for job in jobs.iter() {
+    let mut backlog = VecDeque::new();
+    loop {
+        if backlog.is_empty() {
+            match jobs.recv() {
+                Ok(j) => backlog.push_back(j),
+                Err(_) => break,
+            }
+        }
+        if opts.realtime {
+            backlog.extend(jobs.try_iter());
+            out.views_skipped += thin_backlog(&mut backlog, opts.max_view_backlog);
+        }
+        let Some(job) = backlog.pop_front() else {
+            continue;
+        };
         let started = Instant::now();
         let seq = job.seq();
         match job {
@@ -249,5 +315,78 @@ fn to_f32(src: &Image<u8>, dst: &mut Image<f32>) {
         for (d, s) in dst.row_mut(y).iter_mut().zip(src.row(y)) {
             *d = *s as f32;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(t_ns: i64) -> MapFrame {
+        MapFrame {
+            t: TimeNs(t_ns),
+            image: Arc::new(Image::new(4, 4)),
+            t_world_cam: Isometry3::identity(),
+        }
+    }
+
+    fn view(seq: u64) -> MapJob {
+        MapJob::Observe {
+            seq,
+            frame: frame(seq as i64),
+        }
+    }
+
+    fn new_keyframe(seq: u64) -> MapJob {
+        MapJob::NewKeyframe {
+            seq,
+            id: seq as u32,
+            frame: frame(seq as i64),
+            history: Vec::new(),
+            propagate: true,
+            seed: None,
+            inv_depth_range_m_inv: None,
+        }
+    }
+
+    fn seqs(b: &VecDeque<MapJob>) -> Vec<u64> {
+        b.iter().map(MapJob::seq).collect()
+    }
+
+    #[test]
+    fn a_real_time_backlog_keeps_keyframes_and_the_newest_views_of_the_last_one() {
+        let mut b: VecDeque<MapJob> = [
+            view(1),
+            new_keyframe(2),
+            view(3),
+            MapJob::ScaleDepths {
+                seq: 4,
+                id: 2,
+                factor: 1.1,
+            },
+            view(5),
+            new_keyframe(6),
+            view(7),
+            view(8),
+            view(9),
+        ]
+        .into_iter()
+        .collect();
+        assert_eq!(thin_backlog(&mut b, 2), 4);
+        assert_eq!(seqs(&b), vec![2, 4, 6, 8, 9]);
+    }
+
+    #[test]
+    fn a_short_backlog_is_left_alone() {
+        let mut b: VecDeque<MapJob> = [new_keyframe(1), view(2), view(3)].into_iter().collect();
+        assert_eq!(thin_backlog(&mut b, 2), 0);
+        assert_eq!(seqs(&b), vec![1, 2, 3]);
+        let mut only_views: VecDeque<MapJob> = (1..=5).map(view).collect();
+        assert_eq!(
+            thin_backlog(&mut only_views, 0),
+            4,
+            "at least one view is kept"
+        );
+        assert_eq!(seqs(&only_views), vec![5]);
     }
 }

@@ -11,6 +11,7 @@ pub mod replay;
 pub mod report;
 pub mod scale_observer;
 pub mod takeoff;
+pub mod thread_priority;
 
 pub use config::Config;
 pub use replay::{DepthSource, ReplayOptions, ReplayOutput, replay};

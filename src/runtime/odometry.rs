@@ -35,7 +35,9 @@
 
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, carry_correction};
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
-use super::mapping_worker::{MapFrame, MapJob, MapSnapshot, MappingOutput, MappingThread};
+use super::mapping_worker::{
+    MapFrame, MapJob, MapSnapshot, MappingOptions, MappingOutput, MappingThread,
+};
 use super::refinement_worker::{
     KeyframeJob, ReadyKeyframe, RefineJob, RefineResult, RefineSettings, RefinementThread,
     TakeoffJob,
@@ -103,6 +105,12 @@ pub struct BootstrapConfig {
     pub offline_lag_frames: u64,
     /// Queue length of the mapping thread's job and snapshot channels.
     pub queue_len: usize,
+    /// Real time: views the mapper keeps waiting for the current keyframe; older ones are
+    /// skipped ([`MappingOptions::max_view_backlog`]).
+    pub max_view_backlog: usize,
+    /// The mapping and refinement threads raise their nice value by this much, so that the
+    /// tracking thread gets a core whenever it needs one (Linux; 0 = same priority).
+    pub background_nice: i32,
     /// Seed each new keyframe with the previous keyframe's map (DPPTAM's propagation).
     pub propagate_maps: bool,
     /// Prior standard deviation of the accelerometer bias when motion starts, m/s².
@@ -187,6 +195,8 @@ impl Default for BootstrapConfig {
             refresh_every_frames: 2,
             offline_lag_frames: 2,
             queue_len: 8,
+            max_view_backlog: 2,
+            background_nice: 10,
             propagate_maps: true,
             rest_accel_bias_std_m_s2: 0.1,
             rest_min_tilt_std_rad: 1e-3,
@@ -371,6 +381,9 @@ pub struct Odometry {
     seq: u64,
     /// Offline: jobs sent, as (frame number, seq), whose snapshots are still to be awaited.
     awaited: VecDeque<(u64, u64)>,
+    /// Real time: keyframe jobs (new keyframe, rescale) that found the mapper's queue full, in
+    /// order; sent before anything else as soon as there is room (views are dropped instead).
+    deferred_jobs: VecDeque<MapJob>,
     frame_number: u64,
     tracking_kf: Option<u32>,
     /// The mapper's map of the tracking keyframe as installed.
@@ -465,7 +478,12 @@ impl Odometry {
         let mapping = MappingThread::spawn(
             cfg.mapping.clone(),
             rig.camera,
-            cfg.bootstrap.queue_len.max(1),
+            MappingOptions {
+                queue_len: cfg.bootstrap.queue_len,
+                realtime: cfg.realtime,
+                max_view_backlog: cfg.bootstrap.max_view_backlog,
+                nice_increment: cfg.bootstrap.background_nice,
+            },
         );
         let refiner = ((cfg.keyframe_bundle.enabled || cfg.bootstrap.refine_takeoff_passes > 0)
             && cfg.tracking.use_vision)
@@ -476,6 +494,7 @@ impl Odometry {
                     noise: rig.noise,
                     tracking: cfg.tracking.clone(),
                     keyframe_bundle: cfg.keyframe_bundle.clone(),
+                    nice_increment: cfg.bootstrap.background_nice,
                 })
             });
         Odometry {
@@ -495,6 +514,7 @@ impl Odometry {
             last_t: None,
             seq: 0,
             awaited: VecDeque::new(),
+            deferred_jobs: VecDeque::new(),
             frame_number: 0,
             tracking_kf: None,
             tracking_map: None,
@@ -577,6 +597,7 @@ impl Odometry {
         }
         self.frame_number += 1;
         self.tracked_step_m = None;
+        self.send_deferred_jobs();
         self.collect_snapshots();
         self.collect_refinement();
         let image = Arc::new(image);
@@ -1504,13 +1525,45 @@ impl Odometry {
 
     fn send(&mut self, job: MapJob) {
         let Some(m) = &self.mapping else { return };
-        let seq = job.seq();
-        if self.cfg.realtime {
-            if m.jobs.try_send(job).is_err() {
-                self.stats.jobs_dropped += 1;
+        if !self.cfg.realtime {
+            let seq = job.seq();
+            if m.jobs.send(job).is_ok() {
+                self.awaited.push_back((self.frame_number, seq));
             }
-        } else if m.jobs.send(job).is_ok() {
-            self.awaited.push_back((self.frame_number, seq));
+            return;
+        }
+        // Real time: never wait. A view may be dropped; a keyframe job may not (the tracker would
+        // wait for a keyframe the mapper never heard of), so it waits its turn here.
+        self.send_deferred_jobs();
+        if !matches!(job, MapJob::Observe { .. }) {
+            self.deferred_jobs.push_back(job);
+            self.send_deferred_jobs();
+        } else if !self.deferred_jobs.is_empty()
+            || self
+                .mapping
+                .as_ref()
+                .is_none_or(|m| m.jobs.try_send(job).is_err())
+        {
+            self.stats.jobs_dropped += 1;
+        }
+    }
+
+    /// Real time: sends the keyframe jobs that found the mapper's queue full, in order, while
+    /// there is room.
+    fn send_deferred_jobs(&mut self) {
+        let Some(m) = &self.mapping else { return };
+        while let Some(job) = self.deferred_jobs.pop_front() {
+            match m.jobs.try_send(job) {
+                Ok(()) => {}
+                Err(crossbeam_channel::TrySendError::Full(job)) => {
+                    self.deferred_jobs.push_front(job);
+                    return;
+                }
+                Err(crossbeam_channel::TrySendError::Disconnected(_)) => {
+                    self.deferred_jobs.clear();
+                    return;
+                }
+            }
         }
     }
 

@@ -105,6 +105,8 @@ pub struct RefineSettings {
     pub noise: ImuNoise,
     pub tracking: TrackerConfig,
     pub keyframe_bundle: KeyframeBundleConfig,
+    /// The thread's nice value is raised by this much ([`super::thread_priority`]).
+    pub nice_increment: i32,
 }
 
 /// Handle of a running refinement thread.
@@ -121,7 +123,10 @@ impl RefinementThread {
         let (otx, orx) = bounded::<RefineOutcome>(2);
         let join = std::thread::Builder::new()
             .name("vidslam-refine".into())
-            .spawn(move || run(&settings, jrx, otx))
+            .spawn(move || {
+                super::thread_priority::lower_current_thread(settings.nice_increment);
+                run(&settings, jrx, otx)
+            })
             .expect("spawn the refinement thread");
         RefinementThread {
             jobs: jtx,

@@ -61,8 +61,10 @@ pub struct ReplayReport {
     pub init_time_s: Option<f64>,
     /// Re-initialisations after tracking loss.
     pub resets: u32,
-    /// Mapper jobs dropped (real-time mode).
+    /// Mapper views dropped by the tracking thread, its queue full (real-time mode).
     pub mapping_jobs_dropped: usize,
+    /// Views skipped by the mapper to keep up with the camera (real-time mode).
+    pub mapping_views_skipped: usize,
     /// Mapping-thread time per job, ms.
     pub mapping_ms_mean: f64,
     pub mapping_ms_p50: f64,
@@ -210,6 +212,7 @@ impl ReplayReport {
             },
             resets: out.resets,
             mapping_jobs_dropped: out.jobs_dropped,
+            mapping_views_skipped: out.mapping.views_skipped,
             mapping_ms_mean: if map_ms.is_empty() {
                 0.0
             } else {
@@ -371,11 +374,14 @@ impl ReplayReport {
             row(
                 "semidense",
                 format!(
-                    "{} points, mapping ms mean/p50/p99 {:.1} / {:.1} / {:.1}",
+                    "{} points, mapping ms mean/p50/p99 {:.1} / {:.1} / {:.1}, views dropped / \
+                     skipped {} / {}",
                     self.semidense_points,
                     self.mapping_ms_mean,
                     self.mapping_ms_p50,
-                    self.mapping_ms_p99
+                    self.mapping_ms_p99,
+                    self.mapping_jobs_dropped,
+                    self.mapping_views_skipped
                 ),
             );
         }

@@ -1,0 +1,71 @@
+//! Scheduling priority of the background threads (mapping, refinement).
+//!
+//! The tracking thread must finish every frame within its budget; the mapper and the refinement
+//! may take as long as they need, at the price of latency. On two cores the three compete, and
+//! under the default scheduler the tracker's p99 grows by the time slices the others take. A
+//! background thread therefore lowers its own priority (raises its nice value) when it starts:
+//! the kernel then gives the tracker the core whenever it is runnable. Raising one's own nice value
+//! needs no privilege. Linux only (elsewhere a no-op); the result never depends on it, only the
+//! timing.
+
+/// Raises the calling thread's nice value by `increment` (0: nothing done). Returns whether the
+/// priority was changed.
+pub fn lower_current_thread(increment: i32) -> bool {
+    if increment <= 0 {
+        return false;
+    }
+    lower(increment)
+}
+
+#[cfg(target_os = "linux")]
+fn lower(increment: i32) -> bool {
+    // SAFETY: gettid and getpriority/setpriority take plain integers and touch no memory of ours.
+    // On Linux, PRIO_PROCESS with a thread id addresses that thread alone.
+    unsafe {
+        let tid = libc::gettid() as libc::id_t;
+        *libc::__errno_location() = 0;
+        let now = libc::getpriority(libc::PRIO_PROCESS, tid);
+        if now == -1 && *libc::__errno_location() != 0 {
+            return false;
+        }
+        let target = (now + increment).min(19);
+        libc::setpriority(libc::PRIO_PROCESS, tid, target) == 0
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn lower(_increment: i32) -> bool {
+    false
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(target_os = "linux")]
+    fn own_nice() -> i32 {
+        // SAFETY: as in `lower`.
+        unsafe { libc::getpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t) }
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_background_thread_lowers_only_its_own_priority() {
+        let before = own_nice();
+        let inside = std::thread::spawn(|| {
+            let before = own_nice();
+            assert!(lower_current_thread(5));
+            (before, own_nice())
+        })
+        .join()
+        .unwrap();
+        assert_eq!(inside.1, (inside.0 + 5).min(19), "{inside:?}");
+        assert_eq!(own_nice(), before, "the spawning thread keeps its priority");
+    }
+
+    #[test]
+    fn zero_changes_nothing() {
+        assert!(!lower_current_thread(0));
+        assert!(!lower_current_thread(-3));
+    }
+}
