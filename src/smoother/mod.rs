@@ -3,6 +3,7 @@
 //! (see [`keyframe_window`] for why the paper's frame-to-keyframe tracking needs it).
 
 pub mod keyframe_window;
+mod nearest;
 pub mod photometric_bundle;
 pub mod relative_pose;
 

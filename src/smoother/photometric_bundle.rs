@@ -345,28 +345,10 @@ impl PhotometricBundle<'_> {
         })
     }
 
-    /// For each host point, its `smoothness_neighbours` nearest others in the image (by ray).
+    /// For each host point, its `smoothness_neighbours` nearest others in the image (by ray; ties
+    /// to the lower index).
     fn neighbours(&self) -> Vec<Vec<u32>> {
-        let rays = &self.host.rays;
-        let k = self.cfg.smoothness_neighbours;
-        let mut by_dist: Vec<(f64, u32)> = Vec::with_capacity(rays.len());
-        rays.iter()
-            .enumerate()
-            .map(|(i, a)| {
-                by_dist.clear();
-                by_dist.extend(
-                    rays.iter()
-                        .enumerate()
-                        .filter(|&(j, _)| j != i)
-                        .map(|(j, b)| ((a - b).norm_squared(), j as u32)),
-                );
-                let n = k.min(by_dist.len());
-                if n > 0 {
-                    by_dist.select_nth_unstable_by(n - 1, |x, y| x.0.total_cmp(&y.0));
-                }
-                by_dist[..n].iter().map(|x| x.1).collect()
-            })
-            .collect()
+        super::nearest::k_nearest(&self.host.rays, self.cfg.smoothness_neighbours)
     }
 
     /// The smoothness prior's target per point: the median inverse depth of its neighbours
