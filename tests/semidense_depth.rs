@@ -190,7 +190,11 @@ fn semidense_depth_matches_ground_truth() {
     assert_eq!(n, 31);
     let kf = n / 2;
     let views = views_around(kf, 9, n);
-    let cfg = SemidenseConfig::default();
+    // Sequential here; the parallel search is compared with it below.
+    let cfg = SemidenseConfig {
+        parallel: false,
+        ..SemidenseConfig::default()
+    };
     let (k, ms) = build(&seq, kf, &views, &cfg, None);
     let c0 = thread_cpu_s();
     let map = k.map();
@@ -214,7 +218,7 @@ fn semidense_depth_matches_ground_truth() {
         max_ms,
         map_ms
     );
-    // The same with the candidates searched on the rayon pool: identical result; wall time
+    // The same with the candidates searched on the rayon pool (the default): identical result; wall time
     // against a sequential rerun interleaved with it (same machine load).
     let par_cfg = SemidenseConfig {
         parallel: true,

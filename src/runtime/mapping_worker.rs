@@ -141,8 +141,23 @@ impl MappingThread {
         let join = std::thread::Builder::new()
             .name("vidslam-mapping".into())
             .spawn(move || {
-                super::thread_priority::lower_current_thread(opts.nice_increment);
-                run(cfg, camera, opts, jrx, stx)
+                let nice = opts.nice_increment;
+                super::thread_priority::lower_current_thread(nice);
+                // `[mapping] parallel`: the candidates are searched on a pool of the mapper's own,
+                // whose threads are as low in priority as the mapper (not rayon's global pool).
+                let pool = cfg.parallel.then(|| {
+                    rayon::ThreadPoolBuilder::new()
+                        .thread_name(|i| format!("vidslam-mapping-{i}"))
+                        .start_handler(move |_| {
+                            super::thread_priority::lower_current_thread(nice);
+                        })
+                        .build()
+                        .ok()
+                });
+                match pool.flatten() {
+                    Some(pool) => pool.install(|| run(cfg, camera, opts, jrx, stx)),
+                    None => run(cfg, camera, opts, jrx, stx),
+                }
             })
             .expect("spawn the mapping thread");
         MappingThread {

@@ -184,8 +184,9 @@ pub struct SemidenseConfig {
     pub prior_std_inflation: f32,
     /// …and is at least this fraction of the propagated inverse depth.
     pub prior_min_rel_std: f32,
-    /// Search the candidates of one `observe` in parallel on the rayon pool (the tracking thread
-    /// shares the cores, so off by default).
+    /// Search the candidates of one `observe` in parallel on the current rayon pool (the result
+    /// is identical). The mapping thread runs it on a pool of its own at the mapper's lowered
+    /// priority, so the tracking thread keeps its core (`runtime::mapping_worker`).
     pub parallel: bool,
 }
 
@@ -215,7 +216,7 @@ impl Default for SemidenseConfig {
             neighbour_rel_tolerance: 0.03,
             prior_std_inflation: 2.0,
             prior_min_rel_std: 0.02,
-            parallel: false,
+            parallel: true,
         }
     }
 }
