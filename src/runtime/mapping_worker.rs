@@ -3,7 +3,8 @@
 //!
 //! Tracking and mapping are joined by two bounded crossbeam channels (jobs in, snapshots out).
 //! A snapshot is an `Arc`: the tracking thread swaps it in without a lock and never waits in
-//! real-time mode (it drops jobs when the queue is full and drains snapshots with `try_recv`).
+//! real-time mode (it drops views when the queue is full, holds a new keyframe back until there
+//! is room, and drains snapshots with `try_recv`; the mapper skips stale views, [`MappingOptions`]).
 //! In offline mode it waits for the snapshot of each job at a fixed frame lag, which makes a replay
 //! deterministic. The dense (superpixel) thread of section IV-B will hang off the same snapshots:
 //! [`MappingOutput::keyframe_maps`] is what it will consume.

@@ -30,8 +30,9 @@
 //! # Determinism
 //! In offline mode every job's snapshot is awaited a fixed number of frames later
 //! (`offline_lag_frames`; mapping of one frame overlaps tracking of the next), so a
-//! replay gives the same poses every time. In real-time mode the tracking thread never waits: jobs
-//! that do not fit the queue are dropped and snapshots are taken when they arrive.
+//! replay gives the same poses every time. In real-time mode the tracking thread never waits: views
+//! that do not fit the queue are dropped (a new keyframe waits on this side for room) and snapshots
+//! are taken when they arrive.
 
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, carry_correction};
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
