@@ -145,8 +145,9 @@ impl MappingThread {
                 let nice = opts.nice_increment;
                 super::thread_priority::lower_current_thread(nice);
                 // `[mapping] parallel`: the candidates are searched on a pool of the mapper's own,
-                // whose threads are as low in priority as the mapper (not rayon's global pool).
-                let pool = cfg.parallel.then(|| {
+                // whose threads are as low in priority as the mapper (should the pool fail to
+                // start, on rayon's global pool).
+                let pool = if cfg.parallel {
                     rayon::ThreadPoolBuilder::new()
                         .thread_name(|i| format!("vidslam-mapping-{i}"))
                         .start_handler(move |_| {
@@ -154,8 +155,10 @@ impl MappingThread {
                         })
                         .build()
                         .ok()
-                });
-                match pool.flatten() {
+                } else {
+                    None
+                };
+                match pool {
                     Some(pool) => pool.install(|| run(cfg, camera, opts, jrx, stx)),
                     None => run(cfg, camera, opts, jrx, stx),
                 }

@@ -1533,18 +1533,21 @@ impl Odometry {
             }
             return;
         }
-        // Real time: never wait. A view may be dropped; a keyframe job may not (the tracker would
-        // wait for a keyframe the mapper never heard of), so it waits its turn here.
-        self.send_deferred_jobs();
+        // Real time: never wait. A keyframe job may not be dropped (the tracker would wait for a
+        // keyframe the mapper never heard of): it queues here behind any held back before it. A
+        // view goes only if none is held back and the mapper's queue has room.
         if !matches!(job, MapJob::Observe { .. }) {
             self.deferred_jobs.push_back(job);
             self.send_deferred_jobs();
-        } else if !self.deferred_jobs.is_empty()
-            || self
+            return;
+        }
+        self.send_deferred_jobs();
+        let sent = self.deferred_jobs.is_empty()
+            && self
                 .mapping
                 .as_ref()
-                .is_none_or(|m| m.jobs.try_send(job).is_err())
-        {
+                .is_some_and(|m| m.jobs.try_send(job).is_ok());
+        if !sent {
             self.stats.jobs_dropped += 1;
         }
     }

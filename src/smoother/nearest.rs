@@ -82,20 +82,20 @@ fn less(a: (f64, u32), b: (f64, u32)) -> bool {
     a.0 < b.0 || (a.0 == b.0 && a.1 < b.1)
 }
 
-/// A cube edge giving about `k` points per cell if the points fill the box's two (or three)
-/// widest dimensions.
+/// A cube edge giving about `k` points per cell if the points fill the box's widest dimensions
+/// (those not flat next to the widest). Only the speed depends on it, never the result.
 fn cell_size(extent: &Vector3<f64>, n: usize, k: usize) -> f64 {
     let mut e = [extent.x, extent.y, extent.z];
     e.sort_by(|a, b| b.total_cmp(a));
-    let per_point = if e[2] > 1e-3 * e[0] {
-        (e[0] * e[1] * e[2] / n as f64).cbrt()
-    } else if e[1] > 1e-3 * e[0] {
-        (e[0] * e[1] / n as f64).sqrt()
+    let filled = |x: f64| x > 1e-3 * e[0];
+    let (volume, dims) = if filled(e[2]) {
+        (e[0] * e[1] * e[2], 3.0)
+    } else if filled(e[1]) {
+        (e[0] * e[1], 2.0)
     } else {
-        e[0] / n as f64
+        (e[0], 1.0)
     };
-    let dims = if e[2] > 1e-3 * e[0] { 3.0 } else { 2.0 };
-    let size = per_point * (k.max(1) as f64).powf(1.0 / dims);
+    let size = ((volume / n as f64) * k.max(1) as f64).powf(1.0 / dims);
     if size.is_finite() && size > 0.0 {
         size
     } else {
