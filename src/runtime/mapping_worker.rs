@@ -148,13 +148,7 @@ impl MappingThread {
                 // whose threads are as low in priority as the mapper (should the pool fail to
                 // start, on rayon's global pool).
                 let pool = if cfg.parallel {
-                    rayon::ThreadPoolBuilder::new()
-                        .thread_name(|i| format!("vidslam-mapping-{i}"))
-                        .start_handler(move |_| {
-                            super::thread_priority::lower_current_thread(nice);
-                        })
-                        .build()
-                        .ok()
+                    super::thread_priority::lowered_pool("vidslam-mapping", nice)
                 } else {
                     None
                 };

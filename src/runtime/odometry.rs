@@ -109,9 +109,13 @@ pub struct BootstrapConfig {
     /// Real time: views the mapper keeps waiting for the current keyframe; older ones are
     /// skipped ([`MappingOptions::max_view_backlog`]).
     pub max_view_backlog: usize,
-    /// The mapping and refinement threads raise their nice value by this much, so that the
+    /// The mapping thread (and its pool) raises its nice value by this much, so that the
     /// tracking thread gets a core whenever it needs one (Linux; 0 = same priority).
     pub background_nice: i32,
+    /// The refinement thread (keyframe adjustment) raises its nice value by this much: less
+    /// than the mapper's, since the keyframe it adjusts is waited for while the mapper's views
+    /// can be skipped.
+    pub refinement_nice: i32,
     /// Seed each new keyframe with the previous keyframe's map (DPPTAM's propagation).
     pub propagate_maps: bool,
     /// Prior standard deviation of the accelerometer bias when motion starts, m/s².
@@ -198,6 +202,7 @@ impl Default for BootstrapConfig {
             queue_len: 8,
             max_view_backlog: 2,
             background_nice: 10,
+            refinement_nice: 2,
             propagate_maps: true,
             rest_accel_bias_std_m_s2: 0.1,
             rest_min_tilt_std_rad: 1e-3,
@@ -495,7 +500,7 @@ impl Odometry {
                     noise: rig.noise,
                     tracking: cfg.tracking.clone(),
                     keyframe_bundle: cfg.keyframe_bundle.clone(),
-                    nice_increment: cfg.bootstrap.background_nice,
+                    nice_increment: cfg.bootstrap.refinement_nice,
                 })
             });
         Odometry {

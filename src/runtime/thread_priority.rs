@@ -17,6 +17,20 @@ pub fn lower_current_thread(increment: i32) -> bool {
     lower(increment)
 }
 
+/// A rayon pool (rayon's default thread count) whose threads are named `{name}-{i}` and raise
+/// their nice value by `increment` when they start: the data-parallel work of a background thread,
+/// kept as low in priority as the thread itself (rayon's global pool would run at the tracker's).
+/// `None` if the pool cannot start (the caller then runs on rayon's global pool).
+pub fn lowered_pool(name: &'static str, increment: i32) -> Option<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .thread_name(move |i| format!("{name}-{i}"))
+        .start_handler(move |_| {
+            lower_current_thread(increment);
+        })
+        .build()
+        .ok()
+}
+
 #[cfg(target_os = "linux")]
 fn lower(increment: i32) -> bool {
     // SAFETY: gettid and getpriority/setpriority take plain integers and touch no memory of ours.
@@ -61,6 +75,31 @@ mod tests {
         .unwrap();
         assert_eq!(inside.1, (inside.0 + 5).min(19), "{inside:?}");
         assert_eq!(own_nice(), before, "the spawning thread keeps its priority");
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_lowered_pool_runs_every_task_at_the_lowered_priority() {
+        let before = own_nice();
+        let pool = lowered_pool("vidslam-test", 4).expect("pool");
+        let nices: Vec<i32> = pool.install(|| {
+            use rayon::prelude::*;
+            (0..64)
+                .into_par_iter()
+                .map(|_| {
+                    if rayon::current_thread_index().is_some() {
+                        own_nice()
+                    } else {
+                        i32::MIN
+                    }
+                })
+                .collect()
+        });
+        assert!(
+            nices.iter().all(|&n| n == (before + 4).min(19)),
+            "{nices:?}"
+        );
+        assert_eq!(own_nice(), before, "the calling thread keeps its priority");
     }
 
     #[test]

@@ -222,10 +222,11 @@ impl Params {
     }
 }
 
-/// One observation's contribution, kept for the Schur complement.
+/// One point's depth row of the normal equations, kept for the Schur complement.
 struct PointBlock {
-    /// `(view, ∂r/∂[δθ, δp, α, β] · w, ∂r/∂ρ · w)` accumulated per view.
-    obs: Vec<(usize, SVector<f64, 8>)>,
+    /// Its observations: `Linearization::obs[obs_start..obs_end]`.
+    obs_start: u32,
+    obs_end: u32,
     hpp: f64,
     bp: f64,
 }
@@ -238,6 +239,8 @@ struct Linearization {
     hcc: DMatrix<f64>,
     bc: DVector<f64>,
     points: Vec<PointBlock>,
+    /// `(view, ∂r/∂[δθ, δp, α, β] · w · ∂r/∂ρ)` of every inlier observation, point by point.
+    obs: Vec<(usize, SVector<f64, 8>)>,
     /// Which observations (`point × view`) the cost counts: those inside the image by
     /// `active_margin_px` at the linearisation point. Candidates are evaluated on the same set, so
     /// that points crossing the border do not make the cost jump.
@@ -451,7 +454,9 @@ impl PhotometricBundle<'_> {
         Some((uv, j))
     }
 
-    /// Cost and (Gauss–Newton) normal equations at `p` on `level`.
+    /// Cost and (Gauss–Newton) normal equations at `p` on `level`. With `active` (the set and
+    /// the costs of a linearisation, to evaluate a candidate step on) only the cost is computed:
+    /// the normal equations are left empty.
     fn linearize(
         &self,
         level: usize,
@@ -462,6 +467,7 @@ impl PhotometricBundle<'_> {
         targets: &[f64],
     ) -> Linearization {
         let cfg = &self.cfg;
+        let full = active.is_none();
         let mut hcc = DMatrix::<f64>::zeros(n_c, n_c);
         let mut bc = DVector::<f64>::zeros(n_c);
         let mut cost = 0.0;
@@ -483,6 +489,11 @@ impl PhotometricBundle<'_> {
         for (k, v) in self.views.iter().enumerate() {
             let (xi, xj) = (p.state(k), p.state(k + 1));
             let r: SVector<f64, 9> = imu_residual(&v.pre, &xi, &xj).fixed_rows::<9>(0).into();
+            let w = &imu_info[k];
+            cost += (r.transpose() * w * r)[(0, 0)];
+            if !full {
+                continue;
+            }
             let ji = imu_jacobian_i(&v.pre, &xi, &xj);
             let jj = imu_jacobian_j(&v.pre, &xi, &xj);
             // Map into the variables: columns (index into the state increment, variable index).
@@ -510,8 +521,6 @@ impl PhotometricBundle<'_> {
             };
             put(&ji, k);
             put(&jj, k + 1);
-            let w = &imu_info[k];
-            cost += (r.transpose() * w * r)[(0, 0)];
             let jt_w = j.transpose() * DMatrix::from_column_slice(9, 9, w.as_slice());
             hcc += &jt_w * &j;
             bc += &jt_w * DVector::from_column_slice(r.as_slice());
@@ -554,16 +563,19 @@ impl PhotometricBundle<'_> {
                 )
             })
             .collect();
-        let mut points = Vec::with_capacity(host.rays.len());
-        let mut active_out = Vec::with_capacity(host.rays.len() * nv);
-        let mut obs_cost_out = Vec::with_capacity(host.rays.len() * nv);
+        let n_out = if full { host.rays.len() } else { 0 };
+        let mut points = Vec::with_capacity(n_out);
+        let mut obs = Vec::with_capacity(n_out * nv);
+        let mut active_out = Vec::with_capacity(n_out * nv);
+        let mut obs_cost_out = Vec::with_capacity(n_out * nv);
         let (mut photo_sq, mut inliers, mut observations) = (0.0, 0, 0);
         for (i, ray) in host.rays.iter().enumerate() {
             let rho = p.inv_depth[i];
             let rho0 = targets[i];
             let sr2 = (cfg.smoothness_rel_std * rho0).powi(2);
             let mut blk = PointBlock {
-                obs: Vec::with_capacity(self.views.len()),
+                obs_start: obs.len() as u32,
+                obs_end: obs.len() as u32,
                 hpp: 1.0 / sr2,
                 bp: (rho - rho0) / sr2,
             };
@@ -579,8 +591,8 @@ impl PhotometricBundle<'_> {
             let wg = host.weight[level][i] as f64;
             for (j, (r_wb, p_wb)) in views.iter().enumerate() {
                 if wg <= 0.0 {
-                    active_out.push(false);
-                    obs_cost_out.push(0.0);
+                    push_if(full, &mut active_out, false);
+                    push_if(full, &mut obs_cost_out, 0.0);
                     continue;
                 }
                 let warped = self.warp(&rig, cam, ray, rho, r_wb, p_wb);
@@ -590,9 +602,9 @@ impl PhotometricBundle<'_> {
                         .as_ref()
                         .is_some_and(|(uv, _)| cam.in_image(uv, cfg.active_margin_px)),
                 };
-                active_out.push(counted);
+                push_if(full, &mut active_out, counted);
                 if !counted {
-                    obs_cost_out.push(0.0);
+                    push_if(full, &mut obs_cost_out, 0.0);
                     continue;
                 }
                 observations += 1;
@@ -603,7 +615,7 @@ impl PhotometricBundle<'_> {
                     // adjustment shrink the take-off to keep points inside).
                     let c = active.map_or(wg * outlier_cost, |(_, c)| c[i * nv + j]);
                     cost += c;
-                    obs_cost_out.push(c);
+                    push_if(full, &mut obs_cost_out, c);
                     continue;
                 };
                 let pyr = self.views[j].pyramid;
@@ -614,7 +626,7 @@ impl PhotometricBundle<'_> {
                 let Some((val, dx, dy)) = bilinear_with_gradient(pyr.level(level), u, v) else {
                     let c = active.map_or(wg * outlier_cost, |(_, c)| c[i * nv + j]);
                     cost += c;
-                    obs_cost_out.push(c);
+                    push_if(full, &mut obs_cost_out, c);
                     continue;
                 };
                 let (a, b) = p.brightness[j];
@@ -623,7 +635,7 @@ impl PhotometricBundle<'_> {
                 let ar = r.abs();
                 if ar > cfg.outlier_gray {
                     cost += wg * outlier_cost;
-                    obs_cost_out.push(wg * outlier_cost);
+                    push_if(full, &mut obs_cost_out, wg * outlier_cost);
                     continue;
                 }
                 inliers += 1;
@@ -634,7 +646,10 @@ impl PhotometricBundle<'_> {
                     (k / ar, 2.0 * k * (ar - 0.5 * k))
                 };
                 cost += wg * rho_h / s2;
-                obs_cost_out.push(wg * rho_h / s2);
+                push_if(full, &mut obs_cost_out, wg * rho_h / s2);
+                if !full {
+                    continue;
+                }
                 let w = wg * wh / s2;
                 let jr = Vector2::new(dx as f64, dy as f64).transpose() * jw;
                 let d_rho = jr[6];
@@ -650,9 +665,12 @@ impl PhotometricBundle<'_> {
                 }
                 blk.hpp += w * d_rho * d_rho;
                 blk.bp += w * d_rho * r;
-                blk.obs.push((j, jc * (w * d_rho)));
+                obs.push((j, jc * (w * d_rho)));
             }
-            points.push(blk);
+            if full {
+                blk.obs_end = obs.len() as u32;
+                points.push(blk);
+            }
         }
         for (j, (hb, bb)) in photo_blocks.iter().enumerate() {
             let o = START + PER_VIEW * j;
@@ -671,9 +689,17 @@ impl PhotometricBundle<'_> {
             hcc,
             bc,
             points,
+            obs,
             active: active_out,
             obs_cost: obs_cost_out,
         }
+    }
+}
+
+/// Pushes `x` if `keep` (the per-observation records only a full linearisation keeps).
+fn push_if<T>(keep: bool, out: &mut Vec<T>, x: T) {
+    if keep {
+        out.push(x);
     }
 }
 
@@ -695,10 +721,11 @@ fn solve_step(lin: &Linearization, lambda: f64) -> Option<(DVector<f64>, Vec<f64
     let mut rhs = vec![SVector::<f64, 8>::zeros(); nv];
     for pt in &lin.points {
         let inv = 1.0 / (pt.hpp * (1.0 + lambda));
-        for (k, (ja, ca)) in pt.obs.iter().enumerate() {
+        let pt_obs = &lin.obs[pt.obs_start as usize..pt.obs_end as usize];
+        for (k, (ja, ca)) in pt_obs.iter().enumerate() {
             rhs[*ja] += ca * (pt.bp * inv);
             let cs = ca * inv;
-            for (jb, cb) in &pt.obs[k..] {
+            for (jb, cb) in &pt_obs[k..] {
                 blocks[ja * nv + jb] += cs * cb.transpose();
             }
         }
@@ -730,7 +757,7 @@ fn solve_step(lin: &Linearization, lambda: f64) -> Option<(DVector<f64>, Vec<f64
         .iter()
         .map(|pt| {
             let mut acc = pt.bp;
-            for (j, c) in &pt.obs {
+            for (j, c) in &lin.obs[pt.obs_start as usize..pt.obs_end as usize] {
                 let o = START + PER_VIEW * j;
                 for (a_i, &pa) in PHOTO_COLS.iter().enumerate() {
                     acc += c[a_i] * dc[o + pa];
@@ -1095,6 +1122,42 @@ mod tests {
             }
         }
         assert!(matching >= 18, "{matching} of 20 depth derivatives match");
+    }
+
+    #[test]
+    fn a_candidate_is_costed_like_a_full_linearization_of_the_same_point() {
+        // Candidate steps are evaluated without the normal equations; at the linearisation point
+        // itself (same active set) the cost must be exactly the full one, on every level and with
+        // outliers and points leaving the image in play.
+        let s = scene(1.3);
+        let views = drifted(&s);
+        let b = bundle(&s, &views, BundleConfig::default());
+        let n_c = START + PER_VIEW * views.len();
+        let imu_info = b.imu_information();
+        let p = Params {
+            start: b.start,
+            views: views.clone(),
+            brightness: vec![(0.97, 2.0); views.len()],
+            inv_depth: s.host.inv_depth_m_inv.clone(),
+        };
+        let targets: Vec<f64> = s.host.inv_depth_m_inv.iter().map(|r| r * 1.02).collect();
+        for level in 0..LEVELS {
+            let full = b.linearize(level, &p, &imu_info, n_c, None, &targets);
+            assert!(full.inliers > 0 && full.inliers < full.observations);
+            let cand = b.linearize(
+                level,
+                &p,
+                &imu_info,
+                n_c,
+                Some((&full.active, &full.obs_cost)),
+                &targets,
+            );
+            assert_eq!(cand.cost, full.cost, "level {level}");
+            assert_eq!(cand.inliers, full.inliers);
+            assert!(cand.points.is_empty() && cand.obs.is_empty() && cand.active.is_empty());
+            assert_eq!(full.points.len(), s.host.rays.len());
+            assert_eq!(full.obs.len(), full.inliers);
+        }
     }
 
     #[test]

@@ -205,18 +205,47 @@ impl SemidenseKeyframe {
             let gy = 0.5 * (img.get(x, y + 1) - img.get(x, y - 1));
             (gx, gy)
         };
+        // The eligible pixels (row-major; with cells, the strongest of each cell, cells
+        // row-major) and their squared gradients.
+        let min_g = self.cfg.min_gradient.max(0.0);
+        let cell = self.cfg.candidate_cell_px.max(1);
+        let mut eligible: Vec<(usize, usize, f32, f32)> = Vec::new();
+        if cell == 1 {
+            for y in b..h - b {
+                for x in b..w - b {
+                    let (gx, gy) = grad(x, y);
+                    let g2 = gx * gx + gy * gy;
+                    // (Either test of the threshold below may pass.)
+                    if g2.sqrt() >= min_g || g2 >= min_g * min_g {
+                        eligible.push((x, y, gx, gy));
+                    }
+                }
+            }
+        } else {
+            for y0 in (b..h - b).step_by(cell) {
+                for x0 in (b..w - b).step_by(cell) {
+                    let mut best: Option<(usize, usize, f32, f32)> = None;
+                    for y in y0..(y0 + cell).min(h - b) {
+                        for x in x0..(x0 + cell).min(w - b) {
+                            let (gx, gy) = grad(x, y);
+                            let g2 = gx * gx + gy * gy;
+                            if best.is_none_or(|(_, _, bx, by)| g2 > bx * bx + by * by) {
+                                best = Some((x, y, gx, gy));
+                            }
+                        }
+                    }
+                    eligible.extend(best);
+                }
+            }
+        }
         // Histogram of gradient magnitudes (0.25 gray-level bins) to cap the count.
         const BIN: f32 = 0.25;
         const BINS: usize = 1500;
-        let min_g = self.cfg.min_gradient.max(0.0);
         let mut hist = vec![0usize; BINS + 1];
-        for y in b..h - b {
-            for x in b..w - b {
-                let (gx, gy) = grad(x, y);
-                let g = (gx * gx + gy * gy).sqrt();
-                if g >= min_g {
-                    hist[((g / BIN) as usize).min(BINS)] += 1;
-                }
+        for &(_, _, gx, gy) in &eligible {
+            let g = (gx * gx + gy * gy).sqrt();
+            if g >= min_g {
+                hist[((g / BIN) as usize).min(BINS)] += 1;
             }
         }
         let mut threshold = min_g;
@@ -229,30 +258,27 @@ impl SemidenseKeyframe {
         }
         let thr2 = threshold * threshold;
         self.index = vec![NO_CANDIDATE; w * h];
-        for y in b..h - b {
-            for x in b..w - b {
-                let (gx, gy) = grad(x, y);
-                let g2 = gx * gx + gy * gy;
-                if !(g2 >= thr2 && g2 > 0.0) || self.candidates.len() >= self.cfg.max_candidates {
-                    continue;
-                }
-                let Some(r) = self.camera.unproject(&Vector2::new(x as f64, y as f64)) else {
-                    continue;
-                };
-                let ray = Vector2::new(r.x, r.y);
-                let Some(jinv) = to_pixel(&self.camera, &ray).1.try_inverse() else {
-                    continue;
-                };
-                let g = g2.sqrt();
-                self.index[y * w + x] = self.candidates.len() as u32;
-                self.candidates.push(Candidate {
-                    x: x as u32,
-                    y: y as u32,
-                    ray,
-                    jinv,
-                    grad_dir: [gx / g, gy / g],
-                });
+        for (x, y, gx, gy) in eligible {
+            let g2 = gx * gx + gy * gy;
+            if !(g2 >= thr2 && g2 > 0.0) || self.candidates.len() >= self.cfg.max_candidates {
+                continue;
             }
+            let Some(r) = self.camera.unproject(&Vector2::new(x as f64, y as f64)) else {
+                continue;
+            };
+            let ray = Vector2::new(r.x, r.y);
+            let Some(jinv) = to_pixel(&self.camera, &ray).1.try_inverse() else {
+                continue;
+            };
+            let g = g2.sqrt();
+            self.index[y * w + x] = self.candidates.len() as u32;
+            self.candidates.push(Candidate {
+                x: x as u32,
+                y: y as u32,
+                ray,
+                jinv,
+                grad_dir: [gx / g, gy / g],
+            });
         }
         self.templates = self
             .candidates

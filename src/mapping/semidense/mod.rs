@@ -122,6 +122,10 @@ pub struct SemidenseConfig {
     /// At most this many candidates: the gradient threshold is raised until they fit (DPPTAM caps
     /// at ~25,000 on half-resolution images).
     pub max_candidates: usize,
+    /// At most one candidate per square cell of this size, px: the pixel of strongest gradient
+    /// in the cell (1 = every pixel over the threshold; an edge then gives a candidate per pixel
+    /// across its width).
+    pub candidate_cell_px: usize,
     /// Candidates keep this margin from the image border, px (DPPTAM: 5).
     pub border_px: usize,
     /// Initial search range, inverse depth 1/m; see [`SemidenseKeyframe::set_inv_depth_range`].
@@ -195,6 +199,7 @@ impl Default for SemidenseConfig {
         SemidenseConfig {
             min_gradient: 6.0,
             max_candidates: 30_000,
+            candidate_cell_px: 1,
             border_px: 5,
             min_inv_depth_m_inv: 0.01,
             max_inv_depth_m_inv: 4.0,

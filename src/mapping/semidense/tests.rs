@@ -443,3 +443,46 @@ fn a_keyframe_triangulated_at_the_wrong_scale_is_rescaled_and_fuses_metric_views
     let e = relative_errors(&plane, &after);
     assert!(e[e.len() / 2] < 0.01, "median {}", e[e.len() / 2]);
 }
+
+#[test]
+fn thinned_candidates_keep_one_pixel_per_cell_and_the_depth_accuracy() {
+    let cam = camera();
+    let plane = scene();
+    let img = plane.render(&cam, &pose(0), 1.0, 0.0);
+    let all = SemidenseKeyframe::new(&img, &cam, &pose(0), &SemidenseConfig::default());
+    let cfg = SemidenseConfig {
+        candidate_cell_px: 2,
+        ..Default::default()
+    };
+    let mut kf = SemidenseKeyframe::new(&img, &cam, &pose(0), &cfg);
+    let (n_all, n) = (all.num_candidates(), kf.num_candidates());
+    // At most one per 2x2 cell inside the 5 px margin; on this texture most cells have one.
+    let b = cfg.border_px.max(4);
+    let n_cells = (cam.width - 2 * b).div_ceil(2) * (cam.height - 2 * b).div_ceil(2);
+    assert!(
+        n < n_all && n <= n_cells && n * 2 > n_cells,
+        "{n} of {n_all}, {n_cells} cells"
+    );
+    for k in [1, -1, 2, -2, 3, -3] {
+        kf.observe(&plane.render(&cam, &pose(k), 1.0, 0.0), &pose(k));
+    }
+    let map = kf.map();
+    assert!(map.points.len() > 1500, "{} points", map.points.len());
+    // Cells are aligned to the candidates' border margin.
+    let b = b as u32;
+    let mut cells: Vec<(u32, u32)> = map
+        .points
+        .iter()
+        .map(|p| ((p.u_px as u32 - b) / 2, (p.v_px as u32 - b) / 2))
+        .collect();
+    cells.sort_unstable();
+    let before = cells.len();
+    cells.dedup();
+    assert_eq!(cells.len(), before, "two points in one 2x2 cell");
+    let e = relative_errors(&plane, &map);
+    let median = e[e.len() / 2];
+    assert!(
+        median < 0.005,
+        "median relative inverse-depth error {median}"
+    );
+}
