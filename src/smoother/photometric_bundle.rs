@@ -35,6 +35,7 @@ use crate::imu::residual::imu_jacobian_i;
 use crate::imu::{FrameState, ImuNoise, Matrix15, Preintegration, Vector15};
 use crate::imu::{imu_jacobian_j, imu_residual, imu_residual_covariance};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use rayon::prelude::*;
 
 /// The host keyframe's points: one set, observed at every pyramid level (so each level starts
 /// from the depths the coarser one found).
@@ -247,6 +248,24 @@ struct Linearization {
     active: Vec<bool>,
     /// Cost of each observation at the linearisation point (0 if not active).
     obs_cost: Vec<f64>,
+}
+
+/// One observation (host point in one view) at a linearisation point, before it is summed.
+#[derive(Clone, Copy)]
+enum ObsEval {
+    /// Not in the cost: no gradient weight at this level, or outside the active set.
+    NotCounted,
+    /// In the cost at this constant: an outlier, or out of the image since the linearisation.
+    Lost(f64),
+    /// Residual `r` (grey levels), its robust cost, weight `w` and Jacobians
+    /// `∂r/∂[δθ, δp, α, β]`, `∂r/∂ρ`.
+    Inlier {
+        r: f64,
+        cost: f64,
+        w: f64,
+        jc: SVector<f64, 8>,
+        d_rho: f64,
+    },
 }
 
 /// What [`PhotometricBundle::warp`] needs of the rig and the host, precomputed.
@@ -537,7 +556,6 @@ impl PhotometricBundle<'_> {
         }
         // Photometric terms.
         let host = &self.host;
-        let cam = &host.cameras[level];
         let s2 = cfg.photometric_std_gray.powi(2);
         let k = cfg.huber_gray;
         let outlier_cost = 2.0 * k * (cfg.outlier_gray - 0.5 * k) / s2;
@@ -563,13 +581,24 @@ impl PhotometricBundle<'_> {
                 )
             })
             .collect();
+        // Each observation evaluated in parallel (warp, interpolation, robust weight; nothing
+        // summed), then accumulated in point order on this thread: the sums are the same,
+        // bit for bit, whatever the pool.
+        let mut evals = vec![ObsEval::NotCounted; host.rays.len() * nv];
+        evals
+            .par_chunks_mut(nv.max(1))
+            .with_min_len(64)
+            .enumerate()
+            .for_each(|(i, out)| {
+                self.evaluate_point(level, p, i, &views, &rig, active, outlier_cost, out)
+            });
         let n_out = if full { host.rays.len() } else { 0 };
         let mut points = Vec::with_capacity(n_out);
         let mut obs = Vec::with_capacity(n_out * nv);
         let mut active_out = Vec::with_capacity(n_out * nv);
         let mut obs_cost_out = Vec::with_capacity(n_out * nv);
         let (mut photo_sq, mut inliers, mut observations) = (0.0, 0, 0);
-        for (i, ray) in host.rays.iter().enumerate() {
+        for (i, point_evals) in evals.chunks(nv.max(1)).enumerate() {
             let rho = p.inv_depth[i];
             let rho0 = targets[i];
             let sr2 = (cfg.smoothness_rel_std * rho0).powi(2);
@@ -588,84 +617,46 @@ impl PhotometricBundle<'_> {
                 blk.bp += (rho - rho_in) / s2;
                 cost += (rho - rho_in).powi(2) / s2;
             }
-            let wg = host.weight[level][i] as f64;
-            for (j, (r_wb, p_wb)) in views.iter().enumerate() {
-                if wg <= 0.0 {
-                    push_if(full, &mut active_out, false);
-                    push_if(full, &mut obs_cost_out, 0.0);
-                    continue;
-                }
-                let warped = self.warp(&rig, cam, ray, rho, r_wb, p_wb);
-                let counted = match active {
-                    Some((a, _)) => a[i * nv + j],
-                    None => warped
-                        .as_ref()
-                        .is_some_and(|(uv, _)| cam.in_image(uv, cfg.active_margin_px)),
-                };
-                push_if(full, &mut active_out, counted);
-                if !counted {
-                    push_if(full, &mut obs_cost_out, 0.0);
-                    continue;
-                }
-                observations += 1;
-                let Some((uv, jw)) = warped.filter(|(uv, _)| cam.in_image(uv, cfg.border_px))
-                else {
-                    // Left the image since the linearisation: counted at its cost there, so that
-                    // leaving the image is neither penalised nor rewarded (a penalty made the
-                    // adjustment shrink the take-off to keep points inside).
-                    let c = active.map_or(wg * outlier_cost, |(_, c)| c[i * nv + j]);
-                    cost += c;
-                    push_if(full, &mut obs_cost_out, c);
-                    continue;
-                };
-                let pyr = self.views[j].pyramid;
-                let (u, v) = (uv.x as f32, uv.y as f32);
-                // The bilinear interpolant's own gradient: the step is then exact for the cost that
-                // is evaluated (the pyramid's central differences were 2–10 % off it, enough to
-                // stall the steps along the IMU-constrained directions).
-                let Some((val, dx, dy)) = bilinear_with_gradient(pyr.level(level), u, v) else {
-                    let c = active.map_or(wg * outlier_cost, |(_, c)| c[i * nv + j]);
-                    cost += c;
-                    push_if(full, &mut obs_cost_out, c);
-                    continue;
-                };
-                let (a, b) = p.brightness[j];
-                let i_h = host.intensity[level][i] as f64;
-                let r = val as f64 - a * i_h - b;
-                let ar = r.abs();
-                if ar > cfg.outlier_gray {
-                    cost += wg * outlier_cost;
-                    push_if(full, &mut obs_cost_out, wg * outlier_cost);
-                    continue;
-                }
-                inliers += 1;
-                photo_sq += r * r;
-                let (wh, rho_h) = if ar <= k {
-                    (1.0, r * r)
-                } else {
-                    (k / ar, 2.0 * k * (ar - 0.5 * k))
-                };
-                cost += wg * rho_h / s2;
-                push_if(full, &mut obs_cost_out, wg * rho_h / s2);
-                if !full {
-                    continue;
-                }
-                let w = wg * wh / s2;
-                let jr = Vector2::new(dx as f64, dy as f64).transpose() * jw;
-                let d_rho = jr[6];
-                let jc = SVector::<f64, 8>::from_column_slice(&[
-                    jr[0], jr[1], jr[2], jr[3], jr[4], jr[5], -i_h, -1.0,
-                ]);
-                let (hb, bb) = &mut photo_blocks[j];
-                for a_i in 0..8 {
-                    bb[a_i] += w * jc[a_i] * r;
-                    for b_i in 0..8 {
-                        hb[(a_i, b_i)] += w * jc[a_i] * jc[b_i];
+            for (j, e) in point_evals.iter().enumerate() {
+                match *e {
+                    ObsEval::NotCounted => {
+                        push_if(full, &mut active_out, false);
+                        push_if(full, &mut obs_cost_out, 0.0);
+                    }
+                    ObsEval::Lost(c) => {
+                        push_if(full, &mut active_out, true);
+                        observations += 1;
+                        cost += c;
+                        push_if(full, &mut obs_cost_out, c);
+                    }
+                    ObsEval::Inlier {
+                        r,
+                        cost: c,
+                        w,
+                        jc,
+                        d_rho,
+                    } => {
+                        push_if(full, &mut active_out, true);
+                        observations += 1;
+                        inliers += 1;
+                        photo_sq += r * r;
+                        cost += c;
+                        push_if(full, &mut obs_cost_out, c);
+                        if !full {
+                            continue;
+                        }
+                        let (hb, bb) = &mut photo_blocks[j];
+                        for a_i in 0..8 {
+                            bb[a_i] += w * jc[a_i] * r;
+                            for b_i in 0..8 {
+                                hb[(a_i, b_i)] += w * jc[a_i] * jc[b_i];
+                            }
+                        }
+                        blk.hpp += w * d_rho * d_rho;
+                        blk.bp += w * d_rho * r;
+                        obs.push((j, jc * (w * d_rho)));
                     }
                 }
-                blk.hpp += w * d_rho * d_rho;
-                blk.bp += w * d_rho * r;
-                obs.push((j, jc * (w * d_rho)));
             }
             if full {
                 blk.obs_end = obs.len() as u32;
@@ -692,6 +683,87 @@ impl PhotometricBundle<'_> {
             obs,
             active: active_out,
             obs_cost: obs_cost_out,
+        }
+    }
+
+    /// Point `i`'s observation in every view at `p` on `level` (`out[j]` for view `j`), for
+    /// [`Self::linearize`]; with `active` the set of a linearisation is kept.
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate_point(
+        &self,
+        level: usize,
+        p: &Params,
+        i: usize,
+        views: &[(Matrix3<f64>, Vector3<f64>)],
+        rig: &WarpRig,
+        active: Option<(&[bool], &[f64])>,
+        outlier_cost: f64,
+        out: &mut [ObsEval],
+    ) {
+        let cfg = &self.cfg;
+        let host = &self.host;
+        let cam = &host.cameras[level];
+        let s2 = cfg.photometric_std_gray.powi(2);
+        let k = cfg.huber_gray;
+        let nv = views.len();
+        let ray = &host.rays[i];
+        let rho = p.inv_depth[i];
+        let wg = host.weight[level][i] as f64;
+        for (j, ((r_wb, p_wb), o)) in views.iter().zip(out.iter_mut()).enumerate() {
+            *o = ObsEval::NotCounted;
+            if wg <= 0.0 {
+                continue;
+            }
+            let warped = self.warp(rig, cam, ray, rho, r_wb, p_wb);
+            let counted = match active {
+                Some((a, _)) => a[i * nv + j],
+                None => warped
+                    .as_ref()
+                    .is_some_and(|(uv, _)| cam.in_image(uv, cfg.active_margin_px)),
+            };
+            if !counted {
+                continue;
+            }
+            // Left the image since the linearisation: counted at its cost there, so that
+            // leaving the image is neither penalised nor rewarded (a penalty made the
+            // adjustment shrink the take-off to keep points inside).
+            let lost = ObsEval::Lost(active.map_or(wg * outlier_cost, |(_, c)| c[i * nv + j]));
+            let Some((uv, jw)) = warped.filter(|(uv, _)| cam.in_image(uv, cfg.border_px)) else {
+                *o = lost;
+                continue;
+            };
+            let pyr = self.views[j].pyramid;
+            let (u, v) = (uv.x as f32, uv.y as f32);
+            // The bilinear interpolant's own gradient: the step is then exact for the cost that
+            // is evaluated (the pyramid's central differences were 2–10 % off it, enough to
+            // stall the steps along the IMU-constrained directions).
+            let Some((val, dx, dy)) = bilinear_with_gradient(pyr.level(level), u, v) else {
+                *o = lost;
+                continue;
+            };
+            let (a, b) = p.brightness[j];
+            let i_h = host.intensity[level][i] as f64;
+            let r = val as f64 - a * i_h - b;
+            let ar = r.abs();
+            if ar > cfg.outlier_gray {
+                *o = ObsEval::Lost(wg * outlier_cost);
+                continue;
+            }
+            let (wh, rho_h) = if ar <= k {
+                (1.0, r * r)
+            } else {
+                (k / ar, 2.0 * k * (ar - 0.5 * k))
+            };
+            let jr = Vector2::new(dx as f64, dy as f64).transpose() * jw;
+            *o = ObsEval::Inlier {
+                r,
+                cost: wg * rho_h / s2,
+                w: wg * wh / s2,
+                jc: SVector::<f64, 8>::from_column_slice(&[
+                    jr[0], jr[1], jr[2], jr[3], jr[4], jr[5], -i_h, -1.0,
+                ]),
+                d_rho: jr[6],
+            };
         }
     }
 }
@@ -1157,6 +1229,30 @@ mod tests {
             assert!(cand.points.is_empty() && cand.obs.is_empty() && cand.active.is_empty());
             assert_eq!(full.points.len(), s.host.rays.len());
             assert_eq!(full.obs.len(), full.inliers);
+        }
+    }
+
+    #[test]
+    fn the_result_does_not_depend_on_the_thread_count() {
+        // The observations are evaluated in parallel and summed in point order: one thread and
+        // four give the same adjustment, bit for bit.
+        let s = scene(1.15);
+        let views = drifted(&s);
+        let b = bundle(&s, &views, BundleConfig::default());
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| b.solve().unwrap())
+        };
+        let (one, four) = (run(1), run(4));
+        assert_eq!(one.iterations, four.iterations);
+        assert_eq!(one.cost_after.to_bits(), four.cost_after.to_bits());
+        assert_eq!(one.inv_depth_m_inv, four.inv_depth_m_inv);
+        for (x, y) in one.views.iter().zip(&four.views) {
+            assert_eq!(x.nav.p_world_m, y.nav.p_world_m);
+            assert_eq!(x.nav.r_world_body, y.nav.r_world_body);
         }
     }
 
