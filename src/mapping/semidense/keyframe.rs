@@ -229,6 +229,9 @@ impl SemidenseKeyframe {
                         for x in x0..(x0 + cell).min(w - b) {
                             let (gx, gy) = grad(x, y);
                             let g2 = gx * gx + gy * gy;
+                            if !(g2 >= 0.0) {
+                                continue; // NaN pixel: never the cell's best
+                            }
                             if best.is_none_or(|(_, _, bx, by)| g2 > bx * bx + by * by) {
                                 best = Some((x, y, gx, gy));
                             }
