@@ -142,20 +142,12 @@ impl MappingThread {
         let join = std::thread::Builder::new()
             .name("vidslam-mapping".into())
             .spawn(move || {
-                let nice = opts.nice_increment;
-                super::thread_priority::lower_current_thread(nice);
                 // `[mapping] parallel`: the candidates are searched on a pool of the mapper's own,
-                // whose threads are as low in priority as the mapper (should the pool fail to
-                // start, on rayon's global pool).
-                let pool = if cfg.parallel {
-                    super::thread_priority::lowered_pool("vidslam-mapping", nice)
-                } else {
-                    None
-                };
-                match pool {
-                    Some(pool) => pool.install(|| run(cfg, camera, opts, jrx, stx)),
-                    None => run(cfg, camera, opts, jrx, stx),
-                }
+                // whose threads are as low in priority as the mapper.
+                let (nice, parallel) = (opts.nice_increment, cfg.parallel);
+                super::thread_priority::run_lowered("vidslam-mapping", nice, parallel, || {
+                    run(cfg, camera, opts, jrx, stx)
+                })
             })
             .expect("spawn the mapping thread");
         MappingThread {

@@ -124,15 +124,12 @@ impl RefinementThread {
         let join = std::thread::Builder::new()
             .name("vidslam-refine".into())
             .spawn(move || {
-                let nice = settings.nice_increment;
-                super::thread_priority::lower_current_thread(nice);
                 // The adjustment's points are linearised on a pool of the thread's own, as low
-                // in priority as the thread (should the pool fail to start, on rayon's global
-                // pool; the result is the same).
-                match super::thread_priority::lowered_pool("vidslam-refine", nice) {
-                    Some(pool) => pool.install(|| run(&settings, jrx, otx)),
-                    None => run(&settings, jrx, otx),
-                }
+                // in priority as the thread.
+                let nice = settings.nice_increment;
+                super::thread_priority::run_lowered("vidslam-refine", nice, true, || {
+                    run(&settings, jrx, otx)
+                })
             })
             .expect("spawn the refinement thread");
         RefinementThread {

@@ -17,6 +17,23 @@ pub fn lower_current_thread(increment: i32) -> bool {
     lower(increment)
 }
 
+/// Lowers the calling (background) thread's priority by `increment` and runs `f` on it; with
+/// `with_pool`, inside a [`lowered_pool`] named `name`, so that `f`'s data-parallel work is as low
+/// in priority as the thread (should the pool fail to start, `f` runs on rayon's global pool; a
+/// result never depends on the pool, only the timing).
+pub fn run_lowered<R: Send>(
+    name: &'static str,
+    increment: i32,
+    with_pool: bool,
+    f: impl FnOnce() -> R + Send,
+) -> R {
+    lower_current_thread(increment);
+    match with_pool.then(|| lowered_pool(name, increment)).flatten() {
+        Some(pool) => pool.install(f),
+        None => f(),
+    }
+}
+
 /// A rayon pool (rayon's default thread count) whose threads are named `{name}-{i}` and raise
 /// their nice value by `increment` when they start: the data-parallel work of a background thread,
 /// kept as low in priority as the thread itself (rayon's global pool would run at the tracker's).

@@ -475,7 +475,8 @@ impl PhotometricBundle<'_> {
 
     /// Cost and (Gauss–Newton) normal equations at `p` on `level`. With `active` (the set and
     /// the costs of a linearisation, to evaluate a candidate step on) only the cost is computed:
-    /// the normal equations are left empty.
+    /// the normal equations hold the priors alone, and no point blocks or per-observation records
+    /// are kept.
     fn linearize(
         &self,
         level: usize,
