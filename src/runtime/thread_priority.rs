@@ -27,8 +27,11 @@ pub fn run_lowered<R: Send>(
     with_pool: bool,
     f: impl FnOnce() -> R + Send,
 ) -> R {
+    // The pool first: a new thread inherits its creator's nice value, and each pool thread
+    // raises its own by `increment` — built after this thread is lowered, it would be lowered twice.
+    let pool = with_pool.then(|| lowered_pool(name, increment)).flatten();
     lower_current_thread(increment);
-    match with_pool.then(|| lowered_pool(name, increment)).flatten() {
+    match pool {
         Some(pool) => pool.install(f),
         None => f(),
     }
@@ -37,8 +40,9 @@ pub fn run_lowered<R: Send>(
 /// A rayon pool (rayon's default thread count) whose threads are named `{name}-{i}` and raise
 /// their nice value by `increment` when they start: the data-parallel work of a background thread,
 /// kept as low in priority as the thread itself (rayon's global pool would run at the tracker's).
-/// `None` if the pool cannot start (the caller then runs on rayon's global pool).
-pub fn lowered_pool(name: &'static str, increment: i32) -> Option<rayon::ThreadPool> {
+/// `None` if the pool cannot start (the caller then runs on rayon's global pool). The threads
+/// inherit the creating thread's nice value first: create it from a thread not yet lowered.
+fn lowered_pool(name: &'static str, increment: i32) -> Option<rayon::ThreadPool> {
     rayon::ThreadPoolBuilder::new()
         .thread_name(move |i| format!("{name}-{i}"))
         .start_handler(move |_| {
@@ -117,6 +121,23 @@ mod tests {
             "{nices:?}"
         );
         assert_eq!(own_nice(), before, "the calling thread keeps its priority");
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn run_lowered_runs_on_the_lowered_thread_inside_its_pool_only_if_asked() {
+        for with_pool in [false, true] {
+            let (outer, inner) = std::thread::spawn(move || {
+                let outer = own_nice();
+                let inner = run_lowered("vidslam-test", 3, with_pool, || {
+                    (rayon::current_thread_index().is_some(), own_nice())
+                });
+                (outer, inner)
+            })
+            .join()
+            .unwrap();
+            assert_eq!(inner, (with_pool, (outer + 3).min(19)), "pool {with_pool}");
+        }
     }
 
     #[test]
