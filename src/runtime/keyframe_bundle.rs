@@ -59,6 +59,10 @@ pub struct KeyframeBundleConfig {
     /// At most this many of its views go into that adjustment (evenly spaced, the last one
     /// included; the IMU is preintegrated across the frames left out).
     pub guessed_max_views: usize,
+    /// Real time: an adjustment not back yet is given up (the new keyframe installed as the
+    /// mapper built it) only once the keyframe tracked meanwhile keeps fewer than this fraction
+    /// of its points as inliers. Offline the adjustment is always waited for.
+    pub give_up_inlier_ratio: f64,
 }
 
 impl Default for KeyframeBundleConfig {
@@ -75,6 +79,7 @@ impl Default for KeyframeBundleConfig {
             lag_frames: 0,
             guessed_min_baseline_ratio: 0.1,
             guessed_max_views: 10,
+            give_up_inlier_ratio: 0.3,
         }
     }
 }

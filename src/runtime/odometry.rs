@@ -76,7 +76,9 @@ pub struct BootstrapConfig {
     pub min_keyframe_points: usize,
     /// …and it has been observed by this many frames after it (tracked against the previous
     /// keyframe), so that it is triangulated with forward parallax before anything is tracked
-    /// against it.
+    /// against it. In real time, where the mapper is behind, the frames tracked since it was
+    /// started stand in for them once there are enough for its adjustment
+    /// (`[keyframe_bundle] min_views`): the adjustment triangulates it over those frames.
     pub min_keyframe_forward_views: usize,
     /// …unless fewer than this fraction of the current keyframe's points are still inliers.
     pub urgent_inlier_ratio: f64,
@@ -1087,10 +1089,10 @@ impl Odometry {
             // (An older job's, superseded meanwhile: counted when it was.)
         }
         let Some(o) = outcome else {
-            // Real time, not back yet: if the keyframe tracked meanwhile is slipping away, the new
+            // Real time, not back yet: if the keyframe tracked meanwhile is being lost, the new
             // one is installed as the mapper built it (its adjustment is dropped).
             if self.phase == Phase::Tracking
-                && self.last_inlier_ratio < self.cfg.bootstrap.urgent_inlier_ratio
+                && gives_up_adjustment(self.last_inlier_ratio, &self.cfg.keyframe_bundle)
                 && let Some(PendingRefinement {
                     kind:
                         PendingKind::Keyframe {
@@ -1818,12 +1820,15 @@ impl Odometry {
                     && baseline_m >= self.cfg.bootstrap.min_init_baseline_ratio * median_depth_m
             }
             Phase::Tracking if is_new => {
-                // Wait for forward parallax unless the old keyframe is slipping away.
-                let urgent = self.last_inlier_ratio < self.cfg.bootstrap.urgent_inlier_ratio;
                 n + n_fill >= self.cfg.bootstrap.min_keyframe_points
-                    && (urgent
-                        || fill.is_some()
-                        || s.forward_views >= self.cfg.bootstrap.min_keyframe_forward_views)
+                    && (fill.is_some()
+                        || new_keyframe_ready(
+                            &self.cfg.bootstrap,
+                            self.cfg.realtime,
+                            self.last_inlier_ratio,
+                            s.forward_views,
+                            self.keyframe_adjustable(s.keyframe_id),
+                        ))
             }
             Phase::Tracking => {
                 // (A keyframe tracked with guessed depths keeps them until its own map is full.)
@@ -1940,6 +1945,30 @@ impl Odometry {
 
 /// The samples of `imu` from before `t0` to after `t1` (all after `t0` if `None`), with one sample
 /// of margin each side for the interpolation at the ends.
+/// Whether a new keyframe's map may be installed (or handed to its adjustment): it has forward
+/// parallax (`min_keyframe_forward_views` views after it in the mapper; in real time also the
+/// frames tracked since it, once its adjustment can use them), or the keyframe tracked meanwhile is
+/// slipping away (`urgent_inlier_ratio`).
+fn new_keyframe_ready(
+    b: &BootstrapConfig,
+    realtime: bool,
+    inlier_ratio: f64,
+    forward_views: usize,
+    adjustable: bool,
+) -> bool {
+    inlier_ratio < b.urgent_inlier_ratio
+        || forward_views >= b.min_keyframe_forward_views
+        || (realtime && adjustable)
+}
+
+/// Real time: whether an adjustment not back yet is given up because the keyframe tracked
+/// meanwhile keeps too few inliers (`[keyframe_bundle] give_up_inlier_ratio`). Giving up at the
+/// first sign of slipping (it was `urgent_inlier_ratio`, 0.6) dropped the adjustment in the very
+/// frame it was sent, and unadjusted maps then slipped sooner, one after the other.
+fn gives_up_adjustment(inlier_ratio: f64, cfg: &KeyframeBundleConfig) -> bool {
+    inlier_ratio < cfg.give_up_inlier_ratio
+}
+
 fn imu_between(imu: &[ImuSample], t0: TimeNs, t1: Option<TimeNs>) -> Vec<ImuSample> {
     let i0 = imu.partition_point(|s| s.t <= t0).saturating_sub(2);
     let i1 = t1.map_or(imu.len(), |t1| {
@@ -2044,6 +2073,47 @@ fn static_covariance(tilt_sigma_rad: f64, accel_bias_std_m_s2: f64) -> Matrix15 
 mod tests {
     use super::*;
     use crate::mapping::semidense::MapPoint;
+
+    #[test]
+    fn a_new_keyframe_waits_for_forward_views_offline_and_for_its_adjustment_views_in_real_time() {
+        let b = BootstrapConfig::default();
+        let tracked_well = b.urgent_inlier_ratio + 0.1;
+        let few = b.min_keyframe_forward_views - 1;
+        // Offline: the mapper's forward views, whatever was tracked since.
+        assert!(!new_keyframe_ready(&b, false, tracked_well, few, true));
+        assert!(new_keyframe_ready(
+            &b,
+            false,
+            tracked_well,
+            b.min_keyframe_forward_views,
+            false
+        ));
+        // Real time: the tracked frames its adjustment will use stand in for them…
+        assert!(new_keyframe_ready(&b, true, tracked_well, 0, true));
+        // …but not before there are enough of them.
+        assert!(!new_keyframe_ready(&b, true, tracked_well, few, false));
+        // Either way, a keyframe slipping away does not wait.
+        for realtime in [false, true] {
+            assert!(new_keyframe_ready(
+                &b,
+                realtime,
+                b.urgent_inlier_ratio - 0.1,
+                0,
+                false
+            ));
+        }
+    }
+
+    #[test]
+    fn an_adjustment_is_given_up_only_when_the_tracked_keyframe_is_being_lost() {
+        let kb = KeyframeBundleConfig::default();
+        let urgent = BootstrapConfig::default().urgent_inlier_ratio;
+        assert!(kb.give_up_inlier_ratio < urgent);
+        // Slipping (below the urgent ratio) is not enough: the adjustment is worth waiting for.
+        assert!(!gives_up_adjustment(urgent - 0.05, &kb));
+        assert!(!gives_up_adjustment(kb.give_up_inlier_ratio, &kb));
+        assert!(gives_up_adjustment(kb.give_up_inlier_ratio - 0.01, &kb));
+    }
 
     #[test]
     fn depthless_pixels_fill_only_cells_without_map_points() {
