@@ -1943,8 +1943,6 @@ impl Odometry {
     }
 }
 
-/// The samples of `imu` from before `t0` to after `t1` (all after `t0` if `None`), with one sample
-/// of margin each side for the interpolation at the ends.
 /// Whether a new keyframe's map may be installed (or handed to its adjustment): it has forward
 /// parallax (`min_keyframe_forward_views` views after it in the mapper; in real time also the
 /// frames tracked since it, once its adjustment can use them), or the keyframe tracked meanwhile is
@@ -1969,6 +1967,8 @@ fn gives_up_adjustment(inlier_ratio: f64, cfg: &KeyframeBundleConfig) -> bool {
     inlier_ratio < cfg.give_up_inlier_ratio
 }
 
+/// The samples of `imu` from before `t0` to after `t1` (all after `t0` if `None`), with one sample
+/// of margin each side for the interpolation at the ends.
 fn imu_between(imu: &[ImuSample], t0: TimeNs, t1: Option<TimeNs>) -> Vec<ImuSample> {
     let i0 = imu.partition_point(|s| s.t <= t0).saturating_sub(2);
     let i1 = t1.map_or(imu.len(), |t1| {
