@@ -171,6 +171,38 @@ fn demo_over_several_seeds_writes_the_distribution() {
         );
     }
     assert!(v["ate_rmse_m_median"].as_f64().is_some());
+    assert_eq!(v["realtime"].as_bool(), Some(false));
+    assert!(!t.contains("views skipped"), "{t}");
+    // Paced as on the vehicle: the same summary plus the real-time columns.
+    let rt = out.join("rt");
+    let o = vidslam(&[
+        "demo",
+        "--realtime",
+        "--seeds",
+        "2",
+        "--seconds",
+        "3",
+        "--quiet",
+        "--out",
+        rt.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("adjusted / discarded   views skipped"), "{t}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rt.join("seeds.json")).unwrap()).unwrap();
+    assert_eq!(v["realtime"].as_bool(), Some(true));
+    let row = &v["seeds"][0];
+    assert!(row["mapping_views_skipped"].as_u64().is_some(), "{row}");
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(rt.join("seed-2/replay/report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        report["realtime"].as_bool(),
+        Some(true),
+        "replayed in real time"
+    );
     let o = vidslam(&["demo", "--seeds", "3-1", "--out", out.to_str().unwrap()]);
     assert!(
         !o.status.success() && text(&o).contains("ascending"),

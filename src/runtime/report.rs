@@ -53,6 +53,9 @@ pub struct ReplayReport {
     pub duration_s: f64,
     pub vision: bool,
     pub depth: String,
+    /// Replayed paced at the camera's timestamps (`--realtime`): the background results arrived
+    /// as late as this machine made them, so the figures are one sample of a timing-dependent run.
+    pub realtime: bool,
     /// Frames read before the first valid pose (rest not yet detected).
     pub frames_waiting: usize,
     /// Frames per odometry phase (static, initializing, tracking, lost).
@@ -204,6 +207,7 @@ impl ReplayReport {
             duration_s,
             vision,
             depth: depth.to_string(),
+            realtime: false,
             frames_waiting: out.frames_waiting,
             phases,
             init_time_s: match (out.onset_t, out.tracking_since) {
