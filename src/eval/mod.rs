@@ -2,10 +2,10 @@
 //!
 //! The pipeline behind `vidslam eval` (and the replay command's summary):
 //!
-//! 1. [`associate`]: every estimated pose whose time lies inside the ground truth is paired with the
+//! 1. [`associate()`]: every estimated pose whose time lies inside the ground truth is paired with the
 //!    ground truth interpolated at that time (linear translation, SLERP rotation), provided the two
 //!    bracketing ground-truth samples are at most `max_dt_ns` apart.
-//! 2. [`umeyama`]: the similarity (`sim3`) or rigid (`se3`) transform that best maps the estimated
+//! 2. [`umeyama()`]: the similarity (`sim3`) or rigid (`se3`) transform that best maps the estimated
 //!    positions onto the ground-truth positions in the least-squares sense (Umeyama 1991), the same
 //!    alignment `evo_ape -a` / `-as` perform. The Sim3 scale is always computed and reported, even
 //!    when another alignment is applied, as the scale error of a monocular(-inertial) estimate.

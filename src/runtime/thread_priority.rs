@@ -18,7 +18,7 @@ pub fn lower_current_thread(increment: i32) -> bool {
 }
 
 /// Lowers the calling (background) thread's priority by `increment` and runs `f` on it; with
-/// `with_pool`, inside a [`lowered_pool`] named `name`, so that `f`'s data-parallel work is as low
+/// `with_pool`, inside a `lowered_pool` named `name`, so that `f`'s data-parallel work is as low
 /// in priority as the thread (should the pool fail to start, `f` runs on rayon's global pool; a
 /// result never depends on the pool, only the timing).
 pub fn run_lowered<R: Send>(

@@ -1,0 +1,497 @@
+//! The odometry's side of the mapping thread (`super::super::mapping_worker`): the jobs sent (new
+//! keyframes with their history frames, views), the snapshots taken (offline at fixed frame lags,
+//! in real time as they arrive) and the decision to install a new keyframe, or a refresh of the
+//! tracked one, for tracking.
+
+use super::*;
+
+impl Odometry {
+    pub(super) fn next_seq(&mut self) -> u64 {
+        self.seq += 1;
+        self.seq
+    }
+
+    pub(super) fn send(&mut self, job: MapJob) {
+        let Some(m) = &self.mapping else { return };
+        if !self.cfg.realtime {
+            let seq = job.seq();
+            if m.jobs.send(job).is_ok() {
+                self.awaited.push_back((self.frame_number, seq));
+            }
+            return;
+        }
+        // Real time: never wait. A keyframe job may not be dropped (the tracker would wait for a
+        // keyframe the mapper never heard of): it queues here behind any held back before it. A
+        // view goes only if none is held back and the mapper's queue has room.
+        if !matches!(job, MapJob::Observe { .. }) {
+            self.deferred_jobs.push_back(job);
+            self.send_deferred_jobs();
+            return;
+        }
+        self.send_deferred_jobs();
+        let sent = self.deferred_jobs.is_empty()
+            && self
+                .mapping
+                .as_ref()
+                .is_some_and(|m| m.jobs.try_send(job).is_ok());
+        if !sent {
+            self.stats.jobs_dropped += 1;
+        }
+    }
+
+    /// Real time: sends the keyframe jobs that found the mapper's queue full, in order, while
+    /// there is room.
+    pub(super) fn send_deferred_jobs(&mut self) {
+        let Some(m) = &self.mapping else { return };
+        while let Some(job) = self.deferred_jobs.pop_front() {
+            match m.jobs.try_send(job) {
+                Ok(()) => {}
+                Err(crossbeam_channel::TrySendError::Full(job)) => {
+                    self.deferred_jobs.push_front(job);
+                    return;
+                }
+                Err(crossbeam_channel::TrySendError::Disconnected(_)) => {
+                    self.deferred_jobs.clear();
+                    return;
+                }
+            }
+        }
+    }
+
+    pub(super) fn start_keyframe(
+        &mut self,
+        frame: MapFrame,
+        history: Vec<MapFrame>,
+        propagate: bool,
+    ) {
+        // Chain the mapper's world through the previous keyframe's corrected pose.
+        if let Some((prev, m_prev)) = self.mapper_kf_pose
+            && let Some(x) = self.window.state(prev)
+        {
+            let p_prev = pose_of(x) * self.rig.t_body_cam;
+            self.mapper_from_world = m_prev * p_prev.inverse();
+        }
+        let d = self.mapper_from_world;
+        // Started while tracking a stored keyframe: its map seeds the new one (the mapper's own
+        // keyframe is the one left behind).
+        let seed = self
+            .reusing
+            .then(|| {
+                let id = self.tracking_kf?;
+                let s = self.store.get(id)?;
+                let mut m = (*s.map).clone();
+                m.t_world_cam = d * s.kf.t_world_cam;
+                Some(Arc::new(m))
+            })
+            .flatten();
+        let frame = MapFrame {
+            t_world_cam: d * frame.t_world_cam,
+            ..frame
+        };
+        let history = history
+            .into_iter()
+            .map(|h| MapFrame {
+                t_world_cam: d * h.t_world_cam,
+                ..h
+            })
+            .collect();
+        let id = self.next_kf_id;
+        self.kf_record =
+            (self.phase == Phase::Tracking && self.cfg.keyframe_bundle.enabled).then(|| {
+                KeyframeRecord {
+                    id,
+                    start: *self.tracker.state(),
+                    views: Vec::new(),
+                }
+            });
+        self.mapper_kf_pose = Some((id, frame.t_world_cam));
+        self.next_kf_id += 1;
+        self.newest_kf = Some(id);
+        self.pending_kf = Some(id);
+        self.stats.keyframes += 1;
+        let b = &self.cfg.bootstrap;
+        let range =
+            (!propagate).then_some((b.init_inv_depth_min_m_inv, b.init_inv_depth_max_m_inv));
+        let seq = self.next_seq();
+        self.send(MapJob::NewKeyframe {
+            seq,
+            id,
+            frame,
+            history,
+            propagate,
+            seed,
+            inv_depth_range_m_inv: range,
+        });
+    }
+
+    pub(super) fn observe(&mut self, frame: MapFrame) {
+        let frame = MapFrame {
+            t_world_cam: self.mapper_from_world * frame.t_world_cam,
+            ..frame
+        };
+        let seq = self.next_seq();
+        self.send(MapJob::Observe { seq, frame });
+    }
+
+    /// Takes the mapper's snapshots: offline, exactly those of the jobs sent at least
+    /// `offline_lag_frames` frames ago (waiting for them); real-time, whatever has arrived.
+    /// Installs or refreshes the tracking keyframe.
+    pub(super) fn collect_snapshots(&mut self) {
+        let mut latest: Option<MapSnapshot> = None;
+        let lag = self.cfg.bootstrap.offline_lag_frames.max(1);
+        if let Some(m) = &self.mapping {
+            if self.cfg.realtime {
+                while let Ok(s) = m.snapshots.try_recv() {
+                    latest = Some(s);
+                }
+            } else {
+                let mut want = None;
+                while self
+                    .awaited
+                    .front()
+                    .is_some_and(|(f, _)| f + lag <= self.frame_number)
+                {
+                    want = self.awaited.pop_front().map(|(_, seq)| seq);
+                }
+                if let Some(want) = want {
+                    while let Ok(s) = m.snapshots.recv() {
+                        let done = s.seq >= want;
+                        latest = Some(s);
+                        if done {
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+        if let Some(s) = latest {
+            self.apply_snapshot(&s);
+        }
+    }
+
+    pub(super) fn apply_snapshot(&mut self, s: &MapSnapshot) {
+        let is_new = self.pending_kf == Some(s.keyframe_id);
+        let is_refresh = self.pending_kf.is_none() && self.tracking_kf == Some(s.keyframe_id);
+        if !(is_new || is_refresh) {
+            return; // a keyframe that has been superseded already, or left for a stored one
+        }
+        if self.refining_takeoff(Some(s.keyframe_id))
+            || self.adjusting_keyframe() == Some(s.keyframe_id)
+        {
+            // The first map is waiting for its take-off refinement, the keyframe for its
+            // adjustment.
+            return;
+        }
+        let n = s.map.points.len();
+        // A keyframe whose map covers little of its image (started in a turn on the spot, where
+        // nothing can be triangulated) is tracked with its other gradient pixels too, at the
+        // map's median depth: their photometric residuals constrain the rotation, which is what
+        // changes, whatever their depth. Such a keyframe is installed at once: waiting for
+        // forward views adds no parallax in a turn on the spot.
+        let b = &self.cfg.bootstrap;
+        // Turned on the spot: the new keyframe is barely displaced from the one tracked.
+        let on_the_spot = self.tracker.keyframe().is_some_and(|k| {
+            let new_pose = self.mapper_from_world.inverse() * s.map.t_world_cam;
+            let d = (new_pose.translation.vector - k.t_world_cam.translation.vector).norm();
+            d < b.fill_max_baseline_ratio * k.median_depth_m
+        });
+        let pyramid = || Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
+        let fill = if self.phase == Phase::Tracking
+            && is_new
+            && on_the_spot
+            && n < b.fill_depthless_below_points
+            && let Some(median_inv) = median_inv_depth(&s.map).or(self.last_median_inv_depth)
+        {
+            let pyr = pyramid();
+            let f = depthless_points(&pyr, &s.map, median_inv, &self.cfg.tracking);
+            Some((pyr, f))
+        } else {
+            None
+        };
+        let n_fill = fill.as_ref().map_or(0, |f| f.1.len());
+        let install = match self.phase {
+            Phase::Initializing => {
+                let mut depths: Vec<f32> = s
+                    .map
+                    .points
+                    .iter()
+                    .map(|p| 1.0 / p.inv_depth_m_inv)
+                    .collect();
+                let median_depth_m = if depths.is_empty() {
+                    f64::INFINITY
+                } else {
+                    let m = depths.len() / 2;
+                    *depths.select_nth_unstable_by(m, f32::total_cmp).1 as f64
+                };
+                let kf_world = self.mapper_from_world.inverse() * s.map.t_world_cam;
+                let baseline_m = (self.tracker.t_world_cam().translation.vector
+                    - kf_world.translation.vector)
+                    .norm();
+                n >= self.cfg.bootstrap.min_initial_points
+                    && baseline_m >= self.cfg.bootstrap.min_init_baseline_ratio * median_depth_m
+            }
+            Phase::Tracking if is_new => {
+                n + n_fill >= self.cfg.bootstrap.min_keyframe_points
+                    && (fill.is_some()
+                        || new_keyframe_ready(
+                            &self.cfg.bootstrap,
+                            self.cfg.realtime,
+                            self.last_inlier_ratio,
+                            s.forward_views,
+                            self.keyframe_adjustable(s.keyframe_id),
+                        ))
+            }
+            Phase::Tracking => {
+                // (A keyframe tracked with guessed depths keeps them until its own map is full.)
+                !self.tracking_kf_adjusted
+                    && self.frames_since_refresh >= self.cfg.bootstrap.refresh_every_frames
+                    && n > self.tracking_kf_points + self.tracking_kf_points / 10
+                    && (!self.tracking_kf_filled
+                        || n >= self.cfg.bootstrap.fill_depthless_below_points)
+            }
+            _ => false,
+        };
+        if !install {
+            return;
+        }
+        let mut pts: Vec<DepthPoint> = s
+            .map
+            .points
+            .iter()
+            .map(|p| DepthPoint {
+                u_px: p.u_px,
+                v_px: p.v_px,
+                inv_depth_m_inv: p.inv_depth_m_inv,
+            })
+            .collect();
+        let filled = fill.is_some();
+        let pyr = match fill {
+            Some((pyr, f)) => {
+                pts.extend(f);
+                pyr
+            }
+            None => pyramid(),
+        };
+        let kf = Keyframe::new(
+            s.keyframe_id,
+            s.keyframe_t,
+            &pyr,
+            &self.rig.camera,
+            self.mapper_from_world.inverse() * s.map.t_world_cam,
+            &pts,
+            &self.cfg.tracking,
+        );
+        if self.phase == Phase::Initializing && self.send_takeoff(&kf, s) {
+            return; // the first map will be triangulated again from the refined take-off
+        }
+        let kf = if self.phase == Phase::Tracking
+            && is_new
+            && !filled
+            && self.keyframe_adjustable(s.keyframe_id)
+        {
+            match self.send_keyframe_adjustment(kf, pyr, s) {
+                Ok(()) => return, // installed when the adjustment is back
+                Err(kf) => *kf,
+            }
+        } else {
+            kf
+        };
+        self.install_keyframe(kf, s, is_new, filled, false);
+    }
+
+    /// Makes `kf` (of snapshot `s`) the keyframe tracked against: a new one (`is_new`) or a refresh
+    /// of the current one; `filled` with depthless pixels, `adjusted` by the keyframe adjustment.
+    pub(super) fn install_keyframe(
+        &mut self,
+        kf: Keyframe,
+        s: &MapSnapshot,
+        is_new: bool,
+        filled: bool,
+        adjusted: bool,
+    ) {
+        let n = s.map.points.len();
+        self.takeoff = None;
+        let kf_median_depth_m = kf.median_depth_m;
+        // A refresh of the same keyframe keeps the brightness estimate.
+        let previous = self.tracker.set_keyframe(kf);
+        if is_new {
+            if let (Some(old), Some(map)) = (previous, self.tracking_map.take()) {
+                self.store_keyframe(old, map);
+            }
+            self.pending_kf = None;
+            self.reusing = false;
+            self.left_kf = None;
+            self.reuse_previous = None;
+            self.failed_reuse.clear();
+        }
+        if n > 0 && !filled {
+            self.last_median_inv_depth = Some((1.0 / kf_median_depth_m) as f32);
+        }
+        if is_new {
+            self.guessed_snapshot = None;
+            self.guessed = (filled && self.cfg.keyframe_bundle.guessed_min_baseline_ratio > 0.0)
+                .then(|| self.kf_record.take())
+                .flatten()
+                .filter(|r| r.id == s.keyframe_id);
+        } else if !filled && self.guessed.as_ref().is_some_and(|r| r.id == s.keyframe_id) {
+            self.guessed_snapshot = Some(s.clone());
+        }
+        self.tracking_map = Some(s.map.clone());
+        self.tracking_kf_filled = filled;
+        if is_new {
+            self.tracking_kf_adjusted = adjusted;
+        }
+        self.tracking_kf = Some(s.keyframe_id);
+        self.tracking_kf_points = n;
+        self.frames_since_refresh = 0;
+        if self.phase == Phase::Initializing {
+            self.phase = Phase::Tracking;
+            self.consecutive_flagged = 0;
+            if self.stats.tracking_since.is_none() {
+                self.stats.tracking_since = self.last_t;
+            }
+        }
+    }
+}
+
+/// Whether a new keyframe's map may be installed (or handed to its adjustment): it has forward
+/// parallax (`min_keyframe_forward_views` views after it in the mapper; in real time also the
+/// frames tracked since it, once its adjustment can use them), or the keyframe tracked meanwhile is
+/// slipping away (`urgent_inlier_ratio`).
+pub(super) fn new_keyframe_ready(
+    b: &BootstrapConfig,
+    realtime: bool,
+    inlier_ratio: f64,
+    forward_views: usize,
+    adjustable: bool,
+) -> bool {
+    inlier_ratio < b.urgent_inlier_ratio
+        || forward_views >= b.min_keyframe_forward_views
+        || (realtime && adjustable)
+}
+
+/// The keyframe's level-0 gradient pixels (as the tracker selects them) in cells of its image
+/// that `map` has no point in, at the map's median inverse depth.
+pub(super) fn depthless_points(
+    pyr: &Pyramid,
+    map: &SemidenseMap,
+    median_inv: f32,
+    cfg: &TrackerConfig,
+) -> Vec<DepthPoint> {
+    let cell = (2 * cfg.select_cell_px).max(1);
+    let (w, h) = (pyr.level(0).width(), pyr.level(0).height());
+    let (cw, ch) = (w.div_ceil(cell), h.div_ceil(cell));
+    let mut occupied = vec![false; cw * ch];
+    for p in &map.points {
+        let (cx, cy) = (
+            p.u_px.max(0.0) as usize / cell,
+            p.v_px.max(0.0) as usize / cell,
+        );
+        if cx < cw && cy < ch {
+            occupied[cy * cw + cx] = true;
+        }
+    }
+    select_gradient_pixels(pyr, cfg)
+        .into_iter()
+        .filter(|&(x, y)| !occupied[(y as usize / cell) * cw + x as usize / cell])
+        .map(|(x, y)| DepthPoint {
+            u_px: x as f32,
+            v_px: y as f32,
+            inv_depth_m_inv: median_inv,
+        })
+        .collect()
+}
+
+/// Median inverse depth of a map's points, 1/m.
+pub(super) fn median_inv_depth(map: &SemidenseMap) -> Option<f32> {
+    let mut inv: Vec<f32> = map.points.iter().map(|p| p.inv_depth_m_inv).collect();
+    if inv.is_empty() {
+        return None;
+    }
+    let m = inv.len() / 2;
+    Some(*inv.select_nth_unstable_by(m, f32::total_cmp).1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::semidense::MapPoint;
+
+    #[test]
+    fn a_new_keyframe_waits_for_forward_views_offline_and_for_its_adjustment_views_in_real_time() {
+        let b = BootstrapConfig::default();
+        let tracked_well = b.urgent_inlier_ratio + 0.1;
+        let few = b.min_keyframe_forward_views - 1;
+        // Offline: the mapper's forward views, whatever was tracked since.
+        assert!(!new_keyframe_ready(&b, false, tracked_well, few, true));
+        assert!(new_keyframe_ready(
+            &b,
+            false,
+            tracked_well,
+            b.min_keyframe_forward_views,
+            false
+        ));
+        // Real time: the tracked frames its adjustment will use stand in for them…
+        assert!(new_keyframe_ready(&b, true, tracked_well, 0, true));
+        // …but not before there are enough of them.
+        assert!(!new_keyframe_ready(&b, true, tracked_well, few, false));
+        // Either way, a keyframe slipping away does not wait.
+        for realtime in [false, true] {
+            assert!(new_keyframe_ready(
+                &b,
+                realtime,
+                b.urgent_inlier_ratio - 0.1,
+                0,
+                false
+            ));
+        }
+    }
+
+    #[test]
+    fn depthless_pixels_fill_only_cells_without_map_points() {
+        let cam = CameraModel::euroc_cam0();
+        let img = Image::from_fn(cam.width, cam.height, |x, y| {
+            128.0f32 + 60.0 * ((x as f32) * 0.3).sin() * ((y as f32) * 0.25).cos()
+        });
+        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        pyr.fill_from_f32(&img);
+        let cfg = TrackerConfig::default();
+        // Map points over the left half of the image.
+        let points = (0..cam.height as u32)
+            .step_by(4)
+            .flat_map(|v| {
+                (0..cam.width as u32 / 2).step_by(4).map(move |u| MapPoint {
+                    u_px: u as f32,
+                    v_px: v as f32,
+                    inv_depth_m_inv: 0.5,
+                    inv_depth_std_m_inv: 0.01,
+                    num_views: 3,
+                })
+            })
+            .collect();
+        let map = SemidenseMap {
+            t_world_cam: Isometry3::identity(),
+            camera: cam,
+            points,
+        };
+        assert_eq!(median_inv_depth(&map), Some(0.5));
+        let all = select_gradient_pixels(&pyr, &cfg).len();
+        let fill = depthless_points(&pyr, &map, 0.25, &cfg);
+        assert!(
+            fill.len() > all / 3 && fill.len() < all * 2 / 3,
+            "{} of {all}",
+            fill.len()
+        );
+        let cell = 2 * cfg.select_cell_px;
+        for p in &fill {
+            assert!(p.u_px as usize >= (cam.width / 2).div_ceil(cell) * cell - cell);
+            assert_eq!(p.inv_depth_m_inv, 0.25);
+        }
+        let empty = SemidenseMap {
+            points: Vec::new(),
+            ..map
+        };
+        assert_eq!(median_inv_depth(&empty), None);
+        assert_eq!(depthless_points(&pyr, &empty, 0.25, &cfg).len(), all);
+    }
+}

@@ -1,0 +1,523 @@
+//! The odometry's side of the refinement thread (`super::super::refinement_worker`): which take-off
+//! passes and keyframe adjustments are sent and when, how their outcomes are applied (the frames
+//! tracked meanwhile tracked again), and when one still out is given up.
+
+use super::*;
+
+impl Odometry {
+    /// Sends one refinement pass of the take-off whose first map `kf` (snapshot `s`) is ready to
+    /// the refinement thread; it will re-pose and rescale the views and the first map is started
+    /// again from them. Returns whether it was sent (the map is then not installed yet).
+    pub(super) fn send_takeoff(&mut self, kf: &Keyframe, s: &MapSnapshot) -> bool {
+        let b = &self.cfg.bootstrap;
+        let Some(tk) = self.takeoff.as_ref().filter(|_| self.refiner.is_some()) else {
+            return false;
+        };
+        if tk.keyframe_id != s.keyframe_id
+            || tk.passes >= b.refine_takeoff_passes
+            || tk.frames.len() > b.takeoff_max_pass_frames
+        {
+            return false; // done
+        }
+        let imu = imu_between(self.imu.make_contiguous(), tk.rest.nav.t, None);
+        self.refine_seq += 1;
+        let job = RefineJob::Takeoff(Box::new(TakeoffJob {
+            seq: self.refine_seq,
+            rec: tk.clone(),
+            kf: kf.clone(),
+            imu,
+            rig: TakeoffRig {
+                tracking: self.cfg.tracking.clone(),
+                camera: self.rig.camera,
+                t_body_cam: self.rig.t_body_cam,
+                noise: self.rig.noise,
+                prior: AlignmentPrior {
+                    velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                    accel_std_m_s2: b.takeoff_accel_std_m_s2,
+                    position_std_m: b.takeoff_position_std_m,
+                },
+                max_scale_correction: b.takeoff_max_scale_correction,
+                min_significance_sigmas: b.takeoff_min_significance_sigmas,
+                imu_noise_factor: b.takeoff_imu_noise_factor,
+            },
+            bundle: (b.takeoff_refinement == TakeoffRefinement::BundleAdjustment).then(|| {
+                BundleConfig {
+                    iterations_per_level: b.takeoff_bundle_iterations,
+                    start_velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                    accel_bias_std_m_s2: b.takeoff_accel_std_m_s2,
+                    smoothness_rel_std: b.takeoff_bundle_smoothness_rel_std,
+                    ..BundleConfig::default()
+                }
+            }),
+        }));
+        let kind = PendingKind::Takeoff {
+            keyframe_id: s.keyframe_id,
+            frames_sent: tk.frames.len(),
+            snapshot: s.clone(),
+        };
+        self.send_refinement(job, kind).is_ok()
+    }
+
+    /// Whether new keyframe `id`, ready to be installed, is to be adjusted first
+    /// (`[keyframe_bundle]`): enough frames were tracked since it was started.
+    pub(super) fn keyframe_adjustable(&self, id: u32) -> bool {
+        self.cfg.keyframe_bundle.enabled
+            && self.refiner.is_some()
+            && self.kf_record.as_ref().is_some_and(|r| {
+                r.id == id && r.views.len() >= self.cfg.keyframe_bundle.min_views.max(1)
+            })
+    }
+
+    /// Hands new keyframe `kf` (image pyramid `pyramid`, snapshot `s`) to the in-flight keyframe
+    /// adjustment with the frames tracked since it was started; it is installed for tracking when
+    /// the adjustment is back. `Err(kf)` if it was not sent (thread busy in real time).
+    pub(super) fn send_keyframe_adjustment(
+        &mut self,
+        kf: Keyframe,
+        pyramid: Pyramid,
+        s: &MapSnapshot,
+    ) -> Result<(), Box<Keyframe>> {
+        let Some(rec) = self.kf_record.take() else {
+            return Err(Box::new(kf));
+        };
+        self.send_keyframe_job(rec, kf, pyramid, s.clone(), false)
+    }
+
+    /// Hands keyframe `kf` (image pyramid `pyramid`, snapshot `s`) with the views of `rec` to the
+    /// keyframe adjustment: a new keyframe, or the `tracked` one installed with guessed depths
+    /// (adjusted with its depths free). `Err(kf)` if it was not sent (no views, or the thread busy
+    /// in real time).
+    pub(super) fn send_keyframe_job(
+        &mut self,
+        rec: KeyframeRecord,
+        kf: Keyframe,
+        pyramid: Pyramid,
+        s: MapSnapshot,
+        tracked: bool,
+    ) -> Result<(), Box<Keyframe>> {
+        let Some(tracked_last) = rec.views.last().map(|v| v.1) else {
+            return Err(Box::new(kf));
+        };
+        let imu = imu_between(
+            self.imu.make_contiguous(),
+            rec.start.nav.t,
+            Some(tracked_last.nav.t),
+        );
+        self.refine_seq += 1;
+        let job = RefineJob::Keyframe(Box::new(KeyframeJob {
+            seq: self.refine_seq,
+            rec,
+            kf: kf.clone(),
+            pyramid,
+            imu,
+            free_depths: tracked,
+        }));
+        let kind = PendingKind::Keyframe {
+            tracked_last,
+            unadjusted: Box::new(kf),
+            snapshot: s,
+            tracked,
+        };
+        self.send_refinement(job, kind).map_err(|kind| match *kind {
+            PendingKind::Keyframe { unadjusted, .. } => unadjusted,
+            PendingKind::Takeoff { .. } => unreachable!("sent as a keyframe adjustment"),
+        })
+    }
+
+    /// Queues `job` (offline waiting for room, real time only if there is room) and awaits it.
+    /// At most one job is out at a time (so neither queue can fill up and block): an earlier one
+    /// still out is superseded — offline its outcome is awaited and dropped, in real time the new
+    /// job is dropped while the thread is busy. Not sent: `kind` is handed back.
+    pub(super) fn send_refinement(
+        &mut self,
+        job: RefineJob,
+        kind: PendingKind,
+    ) -> Result<(), Box<PendingKind>> {
+        let Some(refiner) = &self.refiner else {
+            return Err(Box::new(kind));
+        };
+        while self.refine_outstanding > 0 && refiner.next_outcome(!self.cfg.realtime).is_some() {
+            self.refine_outstanding -= 1;
+        }
+        let sent = self.refine_outstanding == 0
+            && if self.cfg.realtime {
+                refiner.try_send(job)
+            } else {
+                refiner.send(job)
+            };
+        if !sent {
+            self.stats.refinements_dropped += 1;
+            return Err(Box::new(kind));
+        }
+        let seq = self.refine_seq;
+        self.refine_outstanding = 1;
+        if self.refining.is_some() {
+            self.stats.refinements_discarded += 1; // superseded before it came back
+        }
+        self.catch_up.clear();
+        self.refining = Some(PendingRefinement {
+            seq,
+            frame_number: self.frame_number,
+            kind,
+        });
+        Ok(())
+    }
+
+    /// Takes the awaited refinement's outcome a fixed number of frames after it was sent
+    /// (`[keyframe_bundle] lag_frames`, `[bootstrap] takeoff_lag_frames`): offline waiting for it,
+    /// in real time if it has arrived by then.
+    pub(super) fn collect_refinement(&mut self) {
+        let Some(refiner) = &self.refiner else {
+            return;
+        };
+        let Some(p) = &self.refining else {
+            // Real time: an outcome of a superseded job is taken off the queue.
+            while self.refine_outstanding > 0 && self.cfg.realtime && refiner.try_recv().is_some() {
+                self.refine_outstanding -= 1;
+            }
+            return;
+        };
+        let lag = match p.kind {
+            PendingKind::Keyframe { .. } => self.cfg.keyframe_bundle.lag_frames,
+            PendingKind::Takeoff { .. } => self.cfg.bootstrap.takeoff_lag_frames,
+        };
+        if self.frame_number < p.frame_number + lag {
+            return; // not before its lag, however early it is ready
+        }
+        let want = p.seq;
+        let mut outcome = None;
+        while let Some(o) = refiner.next_outcome(!self.cfg.realtime) {
+            self.refine_outstanding = self.refine_outstanding.saturating_sub(1);
+            if o.seq == want {
+                outcome = Some(o);
+                break;
+            }
+            // (An older job's, superseded meanwhile: counted when it was.)
+        }
+        let Some(o) = outcome else {
+            // Real time, not back yet: if the keyframe tracked meanwhile is being lost, the new
+            // one is installed as the mapper built it (its adjustment is dropped).
+            if self.phase == Phase::Tracking
+                && gives_up_adjustment(self.last_inlier_ratio, &self.cfg.keyframe_bundle)
+                && let Some(PendingRefinement {
+                    kind:
+                        PendingKind::Keyframe {
+                            unadjusted,
+                            snapshot,
+                            tracked: false,
+                            ..
+                        },
+                    ..
+                }) = self
+                    .refining
+                    .take_if(|p| matches!(p.kind, PendingKind::Keyframe { .. }))
+            {
+                self.catch_up.clear();
+                self.stats.refinements_discarded += 1;
+                if self.pending_kf == Some(snapshot.keyframe_id) {
+                    self.install_keyframe(*unadjusted, &snapshot, true, false, false);
+                }
+            }
+            return;
+        };
+        let Some(p) = self.refining.take() else {
+            return;
+        };
+        let catch_up = std::mem::take(&mut self.catch_up);
+        match (o.result, p.kind) {
+            (
+                RefineResult::Keyframe(adjusted),
+                PendingKind::Keyframe {
+                    tracked_last,
+                    unadjusted,
+                    snapshot,
+                    tracked,
+                },
+            ) => self.apply_keyframe_adjustment(
+                adjusted,
+                (*unadjusted, &snapshot, tracked),
+                &tracked_last,
+                &catch_up,
+                o.time_s,
+            ),
+            (
+                RefineResult::Takeoff(refined),
+                PendingKind::Takeoff {
+                    keyframe_id,
+                    frames_sent,
+                    snapshot,
+                },
+            ) => self.apply_takeoff(refined, keyframe_id, frames_sent, &snapshot, o.time_s),
+            _ => {} // (a job and its outcome are always of the same kind)
+        }
+    }
+
+    /// The adjustment of the new keyframe of `snapshot` is back: the keyframe is installed (as
+    /// the mapper built it if the adjustment failed) and tracking continues from the last view's
+    /// adjusted state, the frames tracked since against the old keyframe (`catch_up`) tracked again
+    /// against the new one (too many of them: the current state is moved by the last view's
+    /// correction instead).
+    pub(super) fn apply_keyframe_adjustment(
+        &mut self,
+        adjusted: Option<ReadyKeyframe>,
+        (unadjusted, snapshot, tracked): (Keyframe, &MapSnapshot, bool),
+        tracked_last: &FrameState,
+        catch_up: &[(TimeNs, Arc<Image<u8>>)],
+        time_s: f64,
+    ) {
+        let id = snapshot.keyframe_id;
+        let current = if tracked {
+            self.pending_kf.is_none() && self.tracking_kf == Some(id) && !self.reusing
+        } else {
+            self.pending_kf == Some(id)
+        };
+        if !(self.phase == Phase::Tracking && current) {
+            self.stats.refinements_discarded += 1; // lost meanwhile
+            return;
+        }
+        let Some(a) = adjusted.filter(|a| {
+            a.last_view.is_finite()
+                && a.median_inv_depth_ratio.is_finite()
+                && a.median_inv_depth_ratio > 0.0
+        }) else {
+            if !tracked {
+                self.install_keyframe(unadjusted, snapshot, true, false, false);
+            }
+            return;
+        };
+        if tracked {
+            // The whole keyframe was mapped at the scale of the guesses: the mapper's copy, the
+            // installed map and the frames kept for the next keyframe are rescaled about its
+            // camera with the adjustment's median change (the tracker continues from the last
+            // view's adjusted state below).
+            let factor = a.median_inv_depth_ratio;
+            let seq = self.next_seq();
+            self.send(MapJob::ScaleDepths { seq, id, factor });
+            let centre = unadjusted.t_world_cam.translation.vector;
+            for h in self.history.iter_mut() {
+                let p = &mut h.t_world_cam.translation.vector;
+                *p = centre + (*p - centre) / factor;
+            }
+            let mut map = (*snapshot.map).clone();
+            map.scale_inv_depths(factor);
+            let snapshot = MapSnapshot {
+                map: Arc::new(map),
+                ..snapshot.clone()
+            };
+            self.install_keyframe(a.keyframe, &snapshot, false, false, true);
+            self.tracking_kf_adjusted = true;
+            self.stats.guessed_keyframe_scales.push(1.0 / factor);
+        } else {
+            self.install_keyframe(a.keyframe, snapshot, true, false, true);
+        }
+        let cov = *self.tracker.covariance();
+        if catch_up.len() < MAX_CATCH_UP_FRAMES {
+            let state_now = *self.tracker.state();
+            let last_t = self.last_t;
+            self.tracker.reset_state(a.last_view, cov);
+            self.last_t = Some(a.last_view.nav.t);
+            let mut poses = Vec::with_capacity(catch_up.len());
+            for (t, image) in catch_up {
+                self.track(*t, image);
+                poses.push((*t, self.tracker.t_world_cam()));
+            }
+            if self.tracker.state().is_finite() {
+                // The frames kept for the next keyframe get their new poses.
+                for h in self.history.iter_mut() {
+                    if let Some((_, p)) = poses.iter().find(|(t, _)| *t == h.t) {
+                        h.t_world_cam = *p;
+                    }
+                }
+            } else {
+                self.tracker.reset_state(state_now, cov);
+                self.last_t = last_t;
+            }
+            self.stats.catch_up_frames += catch_up.len();
+        } else {
+            let x = carry_correction(self.tracker.state(), tracked_last, &a.last_view);
+            if x.is_finite() {
+                self.tracker.reset_state(x, cov);
+            }
+        }
+        self.stats.keyframe_bundle_s.push(time_s);
+        self.stats
+            .keyframe_bundle_depth_changes
+            .push(a.median_inv_depth_change);
+    }
+
+    /// A take-off refinement pass is back: the first map is started again from the refined views
+    /// (and the frames dead-reckoned since, re-predicted from the refined state); a failed pass
+    /// installs the first map as it was.
+    pub(super) fn apply_takeoff(
+        &mut self,
+        refined: Option<RefinedTakeoff>,
+        keyframe_id: u32,
+        frames_sent: usize,
+        snapshot: &MapSnapshot,
+        time_s: f64,
+    ) {
+        if self.phase != Phase::Initializing
+            || self.takeoff.as_ref().map(|t| t.keyframe_id) != Some(keyframe_id)
+        {
+            self.stats.refinements_discarded += 1; // the first map was restarted meanwhile
+            return;
+        }
+        let Some(r) = refined else {
+            if let Some(tk) = self.takeoff.as_mut() {
+                tk.passes = u32::MAX; // no further pass: install it now
+            }
+            self.apply_snapshot(snapshot);
+            return;
+        };
+        let Some(mut tk) = self.takeoff.take() else {
+            return;
+        };
+        // The tracker continues from the refined state on the IMU until the new map is ready.
+        let mut x = r.last;
+        let mut views = r.views;
+        for f in tk.frames.iter().skip(frames_sent) {
+            x = self.dead_reckon(&x, f.t);
+            views.push(MapFrame {
+                t_world_cam: pose_of(&x) * self.rig.t_body_cam,
+                ..f.clone()
+            });
+        }
+        let t_now = self.tracker.state().nav.t;
+        if x.nav.t < t_now {
+            x = self.dead_reckon(&x, t_now);
+        }
+        let cov = *self.tracker.covariance();
+        self.tracker.reset_state(x, cov);
+        let mut x0 = r.rest;
+        x0.nav.t = tk.keyframe.t;
+        self.window.reset(self.next_kf_id, x0, &tk.rest_cov);
+        tk.rest = r.rest;
+        tk.keyframe_id = self.next_kf_id;
+        tk.passes += 1;
+        tk.frames = views.clone();
+        self.start_keyframe(tk.keyframe.clone(), views, false);
+        // The first map starts again: it gets the whole `max_init_s` to grow.
+        self.init_started = self.last_t;
+        self.stats.takeoff_scales.push(r.scale);
+        self.stats.takeoff_refinement_s.push(time_s);
+        self.takeoff = Some(tk);
+    }
+
+    /// `x` predicted by the IMU to `t`, as the tracker does without a map.
+    pub(super) fn dead_reckon(&mut self, x: &FrameState, t: TimeNs) -> FrameState {
+        let mut pre = Preintegration::new(x.nav.t, x.bias);
+        pre.integrate(self.imu.make_contiguous(), t, None); // (the mean only)
+        FrameState {
+            nav: pre.predict(&x.nav, &x.bias),
+            bias: x.bias,
+        }
+    }
+
+    /// Hands the tracked keyframe installed with guessed depths (`guessed`) to the keyframe
+    /// adjustment, depths free, once the mapper has built its map and the frames tracked since it
+    /// was started span `[keyframe_bundle] guessed_min_baseline_ratio` × its median depth (at most
+    /// `guessed_max_views` of them, evenly spaced). Those frames were tracked against guesses,
+    /// and the map against them: the IMU between them is what gives the keyframe its scale.
+    pub(super) fn adjust_guessed_keyframe(&mut self) {
+        let Some(rec) = &self.guessed else { return };
+        if self.tracking_kf != Some(rec.id) || self.reusing || self.phase != Phase::Tracking {
+            self.guessed = None;
+            self.guessed_snapshot = None;
+            return;
+        }
+        let cfg = &self.cfg.keyframe_bundle;
+        let Some(kf) = self.tracker.keyframe() else {
+            return;
+        };
+        let span_m = rec
+            .views
+            .iter()
+            .map(|(_, x)| (x.nav.p_world_m - rec.start.nav.p_world_m).norm())
+            .fold(0.0, f64::max);
+        if self.tracking_kf_filled
+            || self.guessed_snapshot.is_none()
+            || self.pending_kf.is_some()
+            || self.refining.is_some()
+            || rec.views.len() < cfg.min_views.max(1)
+            || span_m < cfg.guessed_min_baseline_ratio * kf.median_depth_m
+        {
+            return;
+        }
+        let kf = kf.clone();
+        let max_views = cfg.guessed_max_views.max(1);
+        let (Some(mut rec), Some(s)) = (self.guessed.take(), self.guessed_snapshot.take()) else {
+            return;
+        };
+        let n = rec.views.len();
+        if n > max_views {
+            // Evenly spaced, the newest included.
+            let keep: Vec<usize> = (1..=max_views).map(|k| k * n / max_views - 1).collect();
+            rec.views = keep.into_iter().map(|i| rec.views[i].clone()).collect();
+        }
+        let pyramid = Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
+        // (Not sent — real time, thread busy: the keyframe stays as the mapper built it.)
+        let _ = self.send_keyframe_job(rec, kf, pyramid, s, true);
+    }
+
+    /// The tracked keyframe's adjustment with its depths free is under way (real time: it takes
+    /// ~1 s) and the keyframe still tracks well: no new keyframe is started until it is back —
+    /// one started now would be mapped at the scale the adjustment is about to correct, and the
+    /// adjustment would be discarded as superseded. (Offline it is back before the next frame.)
+    pub(super) fn awaiting_guessed_adjustment(&self) -> bool {
+        self.last_inlier_ratio >= self.cfg.bootstrap.urgent_inlier_ratio
+            && self
+                .refining
+                .as_ref()
+                .is_some_and(|p| matches!(p.kind, PendingKind::Keyframe { tracked: true, .. }))
+    }
+
+    /// A take-off refinement pass is under way (of first map `id`, if given).
+    pub(super) fn refining_takeoff(&self, id: Option<u32>) -> bool {
+        self.refining.as_ref().is_some_and(|p| match p.kind {
+            PendingKind::Takeoff { keyframe_id, .. } => id.is_none_or(|id| id == keyframe_id),
+            PendingKind::Keyframe { .. } => false,
+        })
+    }
+
+    /// The keyframe whose adjustment is under way, if any.
+    pub(super) fn adjusting_keyframe(&self) -> Option<u32> {
+        match &self.refining.as_ref()?.kind {
+            PendingKind::Keyframe { snapshot, .. } => Some(snapshot.keyframe_id),
+            PendingKind::Takeoff { .. } => None,
+        }
+    }
+}
+
+/// Real time: whether an adjustment not back yet is given up because the keyframe tracked
+/// meanwhile keeps too few inliers (`[keyframe_bundle] give_up_inlier_ratio`). Giving up at the
+/// first sign of slipping (it was `urgent_inlier_ratio`, 0.6) dropped the adjustment in the very
+/// frame it was sent, and unadjusted maps then slipped sooner, one after the other.
+pub(super) fn gives_up_adjustment(inlier_ratio: f64, cfg: &KeyframeBundleConfig) -> bool {
+    inlier_ratio < cfg.give_up_inlier_ratio
+}
+
+/// The samples of `imu` from before `t0` to after `t1` (all after `t0` if `None`), with one sample
+/// of margin each side for the interpolation at the ends.
+pub(super) fn imu_between(imu: &[ImuSample], t0: TimeNs, t1: Option<TimeNs>) -> Vec<ImuSample> {
+    let i0 = imu.partition_point(|s| s.t <= t0).saturating_sub(2);
+    let i1 = t1.map_or(imu.len(), |t1| {
+        (imu.partition_point(|s| s.t <= t1) + 2).min(imu.len())
+    });
+    imu[i0..i1.max(i0)].to_vec()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_adjustment_is_given_up_only_when_the_tracked_keyframe_is_being_lost() {
+        let kb = KeyframeBundleConfig::default();
+        let urgent = BootstrapConfig::default().urgent_inlier_ratio;
+        assert!(kb.give_up_inlier_ratio < urgent);
+        // Slipping (below the urgent ratio) is not enough: the adjustment is worth waiting for.
+        assert!(!gives_up_adjustment(urgent - 0.05, &kb));
+        assert!(!gives_up_adjustment(kb.give_up_inlier_ratio, &kb));
+        assert!(gives_up_adjustment(kb.give_up_inlier_ratio - 0.01, &kb));
+    }
+}
