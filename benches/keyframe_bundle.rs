@@ -8,48 +8,26 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::sync::Arc;
-use vidslam::dataset::AslDataset;
 use vidslam::image::Pyramid;
-use vidslam::imu::{FrameState, ImuBias, NavState};
+use vidslam::imu::FrameState;
 use vidslam::runtime::keyframe_bundle::{
     KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe,
 };
 use vidslam::runtime::mapping_worker::MapFrame;
-use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
+use vidslam::runtime::replay::start_state;
 use vidslam::tracking::{
     Keyframe, NUM_LEVELS, TrackerConfig, depth_points_from_map, select_gradient_pixels,
 };
 
+mod common;
+
 fn bench(c: &mut Criterion) {
-    let dir = std::env::temp_dir().join(format!("vidslam-bench-kfba-{}", std::process::id()));
-    let mut sim = SimConfig::new(
-        dir.clone(),
-        TrajectorySource::Builtin("demo".into()),
-        ImuSource::Synth,
-    );
-    sim.start_s = Some(12.0);
-    sim.seconds = Some(0.25);
-    sim.force = true;
-    generate(&sim).unwrap();
-    let ds = AslDataset::open(&dir).unwrap();
+    let segment = common::DemoSegment::render("kfba", 12.0, 0.25);
+    let ds = &segment.ds;
     let gt = ds.ground_truth().unwrap().unwrap();
     let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
     let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
-    let state = |t| {
-        let s = gt.nearest(t, 0).unwrap();
-        FrameState {
-            nav: NavState {
-                t,
-                r_world_body: s.t_world_body.rotation,
-                p_world_m: s.t_world_body.translation.vector,
-                v_world_m_s: s.v_world_m_s.unwrap(),
-            },
-            bias: ImuBias {
-                gyro_rad_s: s.gyro_bias_rad_s.unwrap(),
-                accel_m_s2: s.accel_bias_m_s2.unwrap(),
-            },
-        }
-    };
+    let state = |t| start_state(&gt, t).unwrap();
     let cam = ds.camera.model;
     let cfg = TrackerConfig::default();
     let f0 = &frames[0];
@@ -105,7 +83,6 @@ fn bench(c: &mut Criterion) {
         a.median_inv_depth_change * 100.0
     );
     c.bench_function("keyframe_adjustment_752x480_3_views", |b| b.iter(adjust));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 criterion_group! {

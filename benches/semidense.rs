@@ -9,24 +9,15 @@
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use nalgebra::Isometry3;
-use vidslam::dataset::AslDataset;
 use vidslam::image::Image;
 use vidslam::mapping::semidense::{SemidenseConfig, SemidenseKeyframe};
-use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
+
+mod common;
 
 fn bench(c: &mut Criterion) {
-    let dir = std::env::temp_dir().join(format!("vidslam-bench-semidense-{}", std::process::id()));
-    let mut sim = SimConfig::new(
-        dir.clone(),
-        TrajectorySource::Builtin("demo".into()),
-        ImuSource::Synth,
-    );
     // The first figure-eight: ~1.5 m/s, frames 7.5 cm apart.
-    sim.start_s = Some(10.0);
-    sim.seconds = Some(0.6);
-    sim.force = true;
-    generate(&sim).unwrap();
-    let ds = AslDataset::open(&dir).unwrap();
+    let segment = common::DemoSegment::render("semidense", 10.0, 0.6);
+    let ds = &segment.ds;
     let gt = ds.ground_truth().unwrap().unwrap();
     let (images, poses): (Vec<Image<f32>>, Vec<Isometry3<f64>>) = ds
         .frames()
@@ -84,7 +75,6 @@ fn bench(c: &mut Criterion) {
             )
         });
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 criterion_group! {

@@ -3,42 +3,22 @@
 //! visual-inertial Gauss-Newton and covariance. Also the keyframe construction it amortises.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use vidslam::dataset::AslDataset;
-use vidslam::imu::{FrameState, ImuBias, Matrix15, NavState, Preintegration};
-use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
+use vidslam::imu::{Matrix15, Preintegration};
+use vidslam::runtime::replay::start_state;
 use vidslam::tracking::{
     Keyframe, Tracker, TrackerConfig, depth_points_from_map, select_gradient_pixels,
 };
 
+mod common;
+
 fn bench(c: &mut Criterion) {
-    let dir = std::env::temp_dir().join(format!("vidslam-bench-tracking-{}", std::process::id()));
-    let mut sim = SimConfig::new(
-        dir.clone(),
-        TrajectorySource::Builtin("demo".into()),
-        ImuSource::Synth,
-    );
-    sim.start_s = Some(12.0);
-    sim.seconds = Some(0.2);
-    sim.force = true;
-    generate(&sim).unwrap();
-    let ds = AslDataset::open(&dir).unwrap();
+    let segment = common::DemoSegment::render("tracking", 12.0, 0.2);
+    let ds = &segment.ds;
     let gt = ds.ground_truth().unwrap().unwrap();
     let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
     let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
     let (f0, f1) = (&frames[0], &frames[2]);
-    let s0 = gt.nearest(f0.t, 0).unwrap();
-    let x0 = FrameState {
-        nav: NavState {
-            t: f0.t,
-            r_world_body: s0.t_world_body.rotation,
-            p_world_m: s0.t_world_body.translation.vector,
-            v_world_m_s: s0.v_world_m_s.unwrap(),
-        },
-        bias: ImuBias {
-            gyro_rad_s: s0.gyro_bias_rad_s.unwrap(),
-            accel_m_s2: s0.accel_bias_m_s2.unwrap(),
-        },
-    };
+    let x0 = start_state(&gt, f0.t).unwrap();
     let cfg = TrackerConfig::default();
     let cam = ds.camera.model;
     let cov0 = Matrix15::identity() * 1e-6;
@@ -80,7 +60,6 @@ fn bench(c: &mut Criterion) {
             tr.track(f1.t, &img1, &pre)
         })
     });
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 criterion_group! {
