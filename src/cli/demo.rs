@@ -118,14 +118,13 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
             mapping_views_skipped: r.mapping_views_skipped,
         });
     }
-    print!("\nseed   ATE RMSE (SE3)   ATE first 20 s   scale error   resets   tracking p99");
+    let realtime_columns = if a.realtime {
+        "   adjusted / discarded   views skipped"
+    } else {
+        ""
+    };
     println!(
-        "{}",
-        if a.realtime {
-            "   adjusted / discarded   views skipped"
-        } else {
-            ""
-        }
+        "\nseed   ATE RMSE (SE3)   ATE first 20 s   scale error   resets   tracking p99{realtime_columns}"
     );
     for r in &rows {
         let f = |v: Option<f64>, unit: &str| v.map_or("n/a".into(), |v| format!("{v:.3} {unit}"));

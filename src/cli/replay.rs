@@ -131,8 +131,12 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     }
     let traj_path = a.out.join("trajectory.tum");
     est.write(&traj_path, TrajectoryFormat::Tum)?;
-    let mut report = ReplayReport::new(&out, opts.tracker.use_vision, depth_name(a.depth));
-    report.realtime = a.realtime;
+    let mut report = ReplayReport::new(
+        &out,
+        opts.tracker.use_vision,
+        depth_name(a.depth),
+        a.realtime,
+    );
     let ds = AslDataset::open(&a.dir)?;
     if let Some(gt) = ds.ground_truth()? {
         report.evaluate_against(&gt.trajectory(), &est);

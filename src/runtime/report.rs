@@ -123,7 +123,7 @@ pub struct ReplayReport {
 }
 
 impl ReplayReport {
-    pub fn new(out: &ReplayOutput, vision: bool, depth: &str) -> Self {
+    pub fn new(out: &ReplayOutput, vision: bool, depth: &str, realtime: bool) -> Self {
         let tracked: Vec<_> = out
             .frames
             .iter()
@@ -207,7 +207,7 @@ impl ReplayReport {
             duration_s,
             vision,
             depth: depth.to_string(),
-            realtime: false,
+            realtime,
             frames_waiting: out.frames_waiting,
             phases,
             init_time_s: match (out.onset_t, out.tracking_since) {
