@@ -114,7 +114,7 @@ impl Odometry {
     }
 
     /// Tracks keyframe `s` again (gone back to after a stored keyframe failed).
-    pub(super) fn track_again(&mut self, s: StoredKeyframe) {
+    fn track_again(&mut self, s: StoredKeyframe) {
         self.tracking_kf = Some(s.kf.id);
         self.tracker.set_keyframe(s.kf);
         self.tracking_map = Some(s.map);

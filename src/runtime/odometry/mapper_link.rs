@@ -358,7 +358,7 @@ impl Odometry {
 /// parallax (`min_keyframe_forward_views` views after it in the mapper; in real time also the
 /// frames tracked since it, once its adjustment can use them), or the keyframe tracked meanwhile is
 /// slipping away (`urgent_inlier_ratio`).
-pub(super) fn new_keyframe_ready(
+fn new_keyframe_ready(
     b: &BootstrapConfig,
     realtime: bool,
     inlier_ratio: f64,
@@ -372,7 +372,7 @@ pub(super) fn new_keyframe_ready(
 
 /// The keyframe's level-0 gradient pixels (as the tracker selects them) in cells of its image
 /// that `map` has no point in, at the map's median inverse depth.
-pub(super) fn depthless_points(
+fn depthless_points(
     pyr: &Pyramid,
     map: &SemidenseMap,
     median_inv: f32,
@@ -403,7 +403,7 @@ pub(super) fn depthless_points(
 }
 
 /// Median inverse depth of a map's points, 1/m.
-pub(super) fn median_inv_depth(map: &SemidenseMap) -> Option<f32> {
+fn median_inv_depth(map: &SemidenseMap) -> Option<f32> {
     let mut inv: Vec<f32> = map.points.iter().map(|p| p.inv_depth_m_inv).collect();
     if inv.is_empty() {
         return None;

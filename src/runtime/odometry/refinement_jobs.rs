@@ -87,7 +87,7 @@ impl Odometry {
     /// keyframe adjustment: a new keyframe, or the `tracked` one installed with guessed depths
     /// (adjusted with its depths free). `Err(kf)` if it was not sent (no views, or the thread busy
     /// in real time).
-    pub(super) fn send_keyframe_job(
+    fn send_keyframe_job(
         &mut self,
         rec: KeyframeRecord,
         kf: Keyframe,
@@ -128,7 +128,7 @@ impl Odometry {
     /// At most one job is out at a time (so neither queue can fill up and block): an earlier one
     /// still out is superseded — offline its outcome is awaited and dropped, in real time the new
     /// job is dropped while the thread is busy. Not sent: `kind` is handed back.
-    pub(super) fn send_refinement(
+    fn send_refinement(
         &mut self,
         job: RefineJob,
         kind: PendingKind,
@@ -257,7 +257,7 @@ impl Odometry {
     /// adjusted state, the frames tracked since against the old keyframe (`catch_up`) tracked again
     /// against the new one (too many of them: the current state is moved by the last view's
     /// correction instead).
-    pub(super) fn apply_keyframe_adjustment(
+    fn apply_keyframe_adjustment(
         &mut self,
         adjusted: Option<ReadyKeyframe>,
         (unadjusted, snapshot, tracked): (Keyframe, &MapSnapshot, bool),
@@ -348,7 +348,7 @@ impl Odometry {
     /// A take-off refinement pass is back: the first map is started again from the refined views
     /// (and the frames dead-reckoned since, re-predicted from the refined state); a failed pass
     /// installs the first map as it was.
-    pub(super) fn apply_takeoff(
+    fn apply_takeoff(
         &mut self,
         refined: Option<RefinedTakeoff>,
         keyframe_id: u32,
@@ -404,7 +404,7 @@ impl Odometry {
     }
 
     /// `x` predicted by the IMU to `t`, as the tracker does without a map.
-    pub(super) fn dead_reckon(&mut self, x: &FrameState, t: TimeNs) -> FrameState {
+    fn dead_reckon(&mut self, x: &FrameState, t: TimeNs) -> FrameState {
         let mut pre = Preintegration::new(x.nav.t, x.bias);
         pre.integrate(self.imu.make_contiguous(), t, None); // (the mean only)
         FrameState {
@@ -492,13 +492,13 @@ impl Odometry {
 /// meanwhile keeps too few inliers (`[keyframe_bundle] give_up_inlier_ratio`). Giving up at the
 /// first sign of slipping (it was `urgent_inlier_ratio`, 0.6) dropped the adjustment in the very
 /// frame it was sent, and unadjusted maps then slipped sooner, one after the other.
-pub(super) fn gives_up_adjustment(inlier_ratio: f64, cfg: &KeyframeBundleConfig) -> bool {
+fn gives_up_adjustment(inlier_ratio: f64, cfg: &KeyframeBundleConfig) -> bool {
     inlier_ratio < cfg.give_up_inlier_ratio
 }
 
 /// The samples of `imu` from before `t0` to after `t1` (all after `t0` if `None`), with one sample
 /// of margin each side for the interpolation at the ends.
-pub(super) fn imu_between(imu: &[ImuSample], t0: TimeNs, t1: Option<TimeNs>) -> Vec<ImuSample> {
+fn imu_between(imu: &[ImuSample], t0: TimeNs, t1: Option<TimeNs>) -> Vec<ImuSample> {
     let i0 = imu.partition_point(|s| s.t <= t0).saturating_sub(2);
     let i1 = t1.map_or(imu.len(), |t1| {
         (imu.partition_point(|s| s.t <= t1) + 2).min(imu.len())
