@@ -35,21 +35,14 @@ fn bench(c: &mut Criterion) {
     let depth = ds.load_depth_m(f0.t).unwrap().unwrap();
     let pixels = select_gradient_pixels(tr.frame_pyramid(), &cfg);
     let pts = depth_points_from_map(&pixels, &depth, 0.05);
-    let make_kf = |tr: &Tracker| {
-        Keyframe::new(
-            0,
-            f0.t,
-            tr.frame_pyramid(),
-            &cam,
-            tr.t_world_cam(),
-            &pts,
-            &cfg,
-        )
+    let make_kf = |tr: &mut Tracker| {
+        let t_world_cam = tr.t_world_cam();
+        Keyframe::new(0, f0.t, tr.frame_pyramid(), &cam, t_world_cam, &pts, &cfg)
     };
     c.bench_function("keyframe_from_gt_depth_752x480", |b| {
-        b.iter(|| make_kf(&tr))
+        b.iter(|| make_kf(&mut tr))
     });
-    let kf = make_kf(&tr);
+    let kf = make_kf(&mut tr);
     tr.set_keyframe(kf);
     let img1 = f1.load().unwrap();
     let mut pre = Preintegration::new(f0.t, x0.bias);

@@ -85,12 +85,13 @@ fn tracker_with_keyframe(fx: &Fixture, kf: usize) -> Tracker {
         0.05,
     );
     assert!(pts.len() > 1000, "only {} depth points", pts.len());
+    let t_world_cam = tr.t_world_cam();
     let k = Keyframe::new(
         0,
         fx.frames[kf].t,
         tr.frame_pyramid(),
         &cam,
-        tr.t_world_cam(),
+        t_world_cam,
         &pts,
         &cfg,
     );

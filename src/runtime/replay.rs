@@ -389,7 +389,7 @@ fn replay_gt_depth(
         out.frames.push(result);
         out.phases.push(Phase::Tracking);
         if need_kf && opts.tracker.use_vision {
-            let kf = ground_truth_keyframe(&ds, &tracker, &cam, rec.t, next_kf_id)?;
+            let kf = ground_truth_keyframe(&ds, &mut tracker, &cam, rec.t, next_kf_id)?;
             tracker.set_keyframe(kf);
             next_kf_id += 1;
             out.keyframes += 1;
@@ -451,7 +451,7 @@ fn first_result(t: TimeNs, tracker: &Tracker) -> TrackResult {
 /// A keyframe at the tracker's current frame and pose with ground-truth depth.
 fn ground_truth_keyframe(
     ds: &AslDataset,
-    tracker: &Tracker,
+    tracker: &mut Tracker,
     cam: &crate::camera::CameraModel,
     t: TimeNs,
     id: u32,
@@ -463,16 +463,18 @@ fn ground_truth_keyframe(
             ds.mav0().join(format!("depth0/data/{}.png", t.0)).display()
         ))
     })?;
-    let cfg = tracker.config();
-    let pixels = select_gradient_pixels(tracker.frame_pyramid(), cfg);
+    let cfg = tracker.config().clone();
+    let t_world_cam = tracker.t_world_cam();
+    let pyramid = tracker.frame_pyramid();
+    let pixels = select_gradient_pixels(pyramid, &cfg);
     let points = depth_points_from_map(&pixels, &depth, 0.05);
     Ok(Keyframe::new(
         id,
         t,
-        tracker.frame_pyramid(),
+        pyramid,
         cam,
-        tracker.t_world_cam(),
+        t_world_cam,
         &points,
-        cfg,
+        &cfg,
     ))
 }

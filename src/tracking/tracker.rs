@@ -167,8 +167,11 @@ impl Tracker {
     pub fn keyframe(&self) -> Option<&Keyframe> {
         self.keyframe.as_ref()
     }
-    /// The pyramid of the last frame given to [`Tracker::track`] or [`Tracker::load_frame`].
-    pub fn frame_pyramid(&self) -> &Pyramid {
+    /// The pyramid of the last frame given to [`Tracker::track`] or [`Tracker::load_frame`],
+    /// with its gradients (computed here on first use: tracking itself needs none of the
+    /// current frame's).
+    pub fn frame_pyramid(&mut self) -> &Pyramid {
+        self.frame.ensure_gradients();
         &self.frame
     }
     /// Camera pose of the current state, `T_wb · T_bc`.
@@ -235,7 +238,7 @@ impl Tracker {
     /// (`pre.t_start` = previous frame, linearised at the current bias estimate).
     pub fn track(&mut self, t: TimeNs, image: &Image<u8>, pre: &Preintegration) -> TrackResult {
         let started = Instant::now();
-        self.frame.fill_from_u8(image);
+        self.frame.fill_levels_from_u8(image);
         let xi = self.state;
         let x_pred = FrameState {
             nav: pre.predict(&xi.nav, &xi.bias),
@@ -329,14 +332,16 @@ impl Tracker {
         let mut last: Option<Evaluation> = None;
         let median_depth = self.keyframe.as_ref().map_or(1.0, |k| k.median_depth_m);
         for level in (0..NUM_LEVELS).rev() {
-            // Photometric noise scale of this level from the residuals at the start state.
-            let probe = self.evaluate(Some(level), pre, xi, &x, a_imu, aff, 1.0);
-            let Some(ph) = &probe.ph else { continue };
-            if ph.num_valid < 8 {
+            // Photometric noise scale of this level from the residuals at the start state; the
+            // same accumulation is then weighted by it.
+            let Some(probe) = self.photometric(level, &x, aff) else {
+                continue;
+            };
+            if probe.num_valid < 8 {
                 continue;
             }
             let sigma2 = self.robust_sigma2();
-            let mut cur = self.evaluate(Some(level), pre, xi, &x, a_imu, aff, sigma2);
+            let mut cur = self.assemble(Some(probe), pre, xi, &x, a_imu, aff, sigma2);
             let mut lambda = 0.0f64;
             let f_px = self.cameras[level].fx.max(self.cameras[level].fy);
             let mut accepted = 0u8;
@@ -439,29 +444,59 @@ impl Tracker {
         aff: (f64, f64),
         sigma2: f64,
     ) -> Evaluation {
+        let ph = photometric_level.and_then(|level| self.photometric(level, x, aff));
+        self.assemble(ph, pre, xi, x, a_imu, aff, sigma2)
+    }
+
+    /// The photometric system of the keyframe's points at `level` for the state `x` and
+    /// brightness `aff` (unweighted by the noise scale; `|r|` of the valid points left in the
+    /// scratch buffer). `None` without a keyframe.
+    fn photometric(
+        &mut self,
+        level: usize,
+        x: &FrameState,
+        aff: (f64, f64),
+    ) -> Option<PhotometricSystem> {
+        let kf = self.keyframe.as_ref()?;
+        let t_k_b = kf.t_world_cam.inverse() * pose_of(x);
+        let t_c_k = (t_k_b * self.t_body_cam).inverse();
+        let robust = RobustCost {
+            huber_gray: self.cfg.huber_gray,
+            outlier_gray: self.cfg.outlier_gray,
+            border_px: self.cfg.border_px,
+        };
+        Some(accumulate(
+            &kf.levels[level],
+            &kf.cameras[level],
+            self.frame.level(level),
+            &t_c_k,
+            (aff.0.exp(), aff.1),
+            &robust,
+            &mut self.scratch,
+        ))
+    }
+
+    /// [`Tracker::evaluate`] from an already accumulated photometric system `ph` (of the same
+    /// `x` and `aff`): the system is weighted by `1/sigma2`, the brightness prior and the IMU
+    /// residual added.
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        &self,
+        ph: Option<PhotometricSystem>,
+        pre: &Preintegration,
+        xi: &FrameState,
+        x: &FrameState,
+        a_imu: &Matrix15,
+        aff: (f64, f64),
+        sigma2: f64,
+    ) -> Evaluation {
         let mut sys = BlockSystem::<8, 9>::zeros();
         let mut h_ph = SMatrix::<f64, 8, 8>::zeros();
         let mut cost = 0.0;
         let mut ph_out = None;
-        if let (Some(level), Some(kf)) = (photometric_level, &self.keyframe) {
-            let t_w_b = pose_of(x);
-            let t_k_b = kf.t_world_cam.inverse() * t_w_b;
-            let t_c_k = (t_k_b * self.t_body_cam).inverse();
-            let robust = RobustCost {
-                huber_gray: self.cfg.huber_gray,
-                outlier_gray: self.cfg.outlier_gray,
-                border_px: self.cfg.border_px,
-            };
+        if let (Some(ph), Some(kf)) = (ph, &self.keyframe) {
+            let t_k_b = kf.t_world_cam.inverse() * pose_of(x);
             let gain = aff.0.exp();
-            let ph = accumulate(
-                &kf.levels[level],
-                &kf.cameras[level],
-                self.frame.level(level),
-                &t_c_k,
-                (gain, aff.1),
-                &robust,
-                &mut self.scratch,
-            );
             let (h8, b8) = ph.normal_equations(gain);
             let mut a8 = SMatrix::<f64, 8, 8>::identity();
             a8.fixed_view_mut::<6, 6>(0, 0).copy_from(&adjoint(&t_k_b));
