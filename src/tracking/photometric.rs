@@ -87,10 +87,64 @@ impl PhotometricSystem {
     }
 }
 
+/// An inlier of a residual pass: the point's index in its level, its residual `r` (gray levels)
+/// and its IRLS weight `w` (robust weight × the point's own weight, non-zero).
+#[derive(Clone, Copy, Debug)]
+pub struct WeightedResidual {
+    index: u32,
+    res: f32,
+    w: f32,
+}
+
+/// The cost part of a [`PhotometricSystem`]: what a residual pass gives before the normal
+/// equations are accumulated.
+#[derive(Clone, Copy, Debug)]
+pub struct PhotometricCost {
+    /// `Σ ρ(r)` over all points (invalid points charged as outliers), gray levels².
+    pub cost: f64,
+    /// Points of the level.
+    pub num_points: usize,
+    /// Points that project into the image.
+    pub num_valid: usize,
+    /// Valid points with `|r|` within the outlier threshold.
+    pub num_inliers: usize,
+    /// `Σ r²` over inliers, gray levels².
+    pub sum_sq_inliers: f64,
+}
+
 /// Evaluates every point of `level` at `t_cur_kf` (keyframe camera → current camera) and
-/// brightness `(gain, offset_gray) = (e^α, β)`, writing `|r|` of valid points into `abs_residuals` (cleared first; its capacity
-/// is reused, so tracking does not allocate) and returning the accumulated system.
+/// brightness `(gain, offset_gray) = (e^α, β)`, writing `|r|` of valid points into `abs_residuals`
+/// and the inliers' weighted residuals into `inliers` (both cleared first; their capacity is
+/// reused, so tracking does not allocate) and returning the accumulated system.
+#[allow(clippy::too_many_arguments)]
 pub fn accumulate(
+    level: &LevelPoints,
+    camera: &CameraModel,
+    image: &Image<f32>,
+    t_cur_kf: &Isometry3<f64>,
+    brightness: (f64, f64),
+    robust: &RobustCost,
+    abs_residuals: &mut Vec<f32>,
+    inliers: &mut Vec<WeightedResidual>,
+) -> PhotometricSystem {
+    let cost = residuals(
+        level,
+        camera,
+        image,
+        t_cur_kf,
+        brightness,
+        robust,
+        abs_residuals,
+        inliers,
+    );
+    normal_equations_of(level, inliers, cost)
+}
+
+/// The residual pass of [`accumulate`]: the cost and counts, `|r|` of valid points in
+/// `abs_residuals` and the inliers in `inliers` for [`normal_equations_of`]. A trial step the
+/// solver rejects needs nothing more.
+#[allow(clippy::too_many_arguments)]
+pub fn residuals(
     level: &LevelPoints,
     camera: &CameraModel,
     image: &Image<f32>,
@@ -98,24 +152,24 @@ pub fn accumulate(
     (gain, offset_gray): (f64, f64),
     robust: &RobustCost,
     abs_residuals: &mut Vec<f32>,
-) -> PhotometricSystem {
+    inliers: &mut Vec<WeightedResidual>,
+) -> PhotometricCost {
     abs_residuals.clear();
+    inliers.clear();
     let rot = t_cur_kf.rotation.to_rotation_matrix();
     let r = rot.matrix();
     let t = t_cur_kf.translation.vector;
     let (gain_f, offset_f) = (gain as f32, offset_gray as f32);
-    let mut g = [0.0f64; 36]; // upper triangle of the 8x8, row-major
-    let mut c = [0.0f64; 8];
     let mut cost = 0.0f64;
-    let (mut valid, mut inliers) = (0usize, 0usize);
+    let mut valid = 0usize;
     let mut sum_sq = 0.0f64;
     let invalid_cost = robust.invalid_cost() as f64;
-    for (((p, &i_ref), jac), &prior_w) in level
+    for (index, ((p, &i_ref), &prior_w)) in level
         .p_kf_m
         .iter()
         .zip(&level.intensity)
-        .zip(&level.jacobian)
         .zip(&level.weight)
+        .enumerate()
     {
         let pk = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
         let q = r * pk + t;
@@ -140,12 +194,38 @@ pub fn accumulate(
         if w == 0.0 {
             continue;
         }
-        inliers += 1;
         sum_sq += (res * res) as f64;
+        inliers.push(WeightedResidual {
+            index: index as u32,
+            res,
+            w,
+        });
+    }
+    PhotometricCost {
+        cost,
+        num_points: level.len(),
+        num_valid: valid,
+        num_inliers: inliers.len(),
+        sum_sq_inliers: sum_sq,
+    }
+}
+
+/// The normal-equation pass of [`accumulate`]: `G = Σ w ĝ ĝᵀ`, `c = Σ w ĝ r` over the `inliers`
+/// a [`residuals`] pass over `level` found (in its point order), with its `cost`.
+pub fn normal_equations_of(
+    level: &LevelPoints,
+    inliers: &[WeightedResidual],
+    cost: PhotometricCost,
+) -> PhotometricSystem {
+    let mut g = [0.0f64; 36]; // upper triangle of the 8x8, row-major
+    let mut c = [0.0f64; 8];
+    for e in inliers {
+        let i = e.index as usize;
+        let (jac, i_ref, w) = (&level.jacobian[i], level.intensity[i], e.w);
         let row = [
             jac[0], jac[1], jac[2], jac[3], jac[4], jac[5], i_ref, 1.0f32,
         ];
-        let wr = (w * res) as f64;
+        let wr = (w * e.res) as f64;
         let mut k = 0;
         for a in 0..8 {
             let wa = (w * row[a]) as f64;
@@ -168,11 +248,11 @@ pub fn accumulate(
     PhotometricSystem {
         g: gm,
         c: SVector::from(c),
-        cost,
-        num_points: level.len(),
-        num_valid: valid,
-        num_inliers: inliers,
-        sum_sq_inliers: sum_sq,
+        cost: cost.cost,
+        num_points: cost.num_points,
+        num_valid: cost.num_valid,
+        num_inliers: cost.num_inliers,
+        sum_sq_inliers: cost.sum_sq_inliers,
     }
 }
 

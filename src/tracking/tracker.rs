@@ -21,7 +21,10 @@
 
 use super::config::{NUM_LEVELS, TrackerConfig};
 use super::keyframe::Keyframe;
-use super::photometric::{PhotometricSystem, RobustCost, accumulate};
+use super::photometric::{
+    PhotometricCost, PhotometricSystem, RobustCost, WeightedResidual, accumulate,
+    normal_equations_of, residuals,
+};
 use super::schur::BlockSystem;
 use crate::camera::CameraModel;
 use crate::geometry::adjoint;
@@ -123,7 +126,10 @@ pub struct Tracker {
     cov: Matrix15,
     log_gain: f64,
     offset_gray: f64,
+    /// `|r|` of the last residual pass (for the noise scale).
     scratch: Vec<f32>,
+    /// Inliers of the last residual pass (for its normal equations).
+    inliers: Vec<WeightedResidual>,
 }
 
 impl Tracker {
@@ -152,6 +158,7 @@ impl Tracker {
             log_gain: 0.0,
             offset_gray: 0.0,
             scratch: Vec::with_capacity(max_pts),
+            inliers: Vec::with_capacity(max_pts),
         }
     }
 
@@ -360,11 +367,22 @@ impl Tracker {
                     return None;
                 };
                 let (x_new, aff_new) = apply(&x, aff, &dp, &di);
-                let new = self.evaluate(Some(level), pre, xi, &x_new, a_imu, aff_new, sigma2);
-                if new.cost.is_finite() && new.cost <= cur.cost {
+                // The trial's cost first; its normal equations only if it is accepted.
+                let trial = self.photometric_cost(level, &x_new, aff_new);
+                let new_cost = self.total_cost(
+                    trial.map(|c| c.cost),
+                    pre,
+                    xi,
+                    &x_new,
+                    a_imu,
+                    aff_new,
+                    sigma2,
+                );
+                if new_cost.is_finite() && new_cost <= cur.cost {
+                    let ph = trial.and_then(|c| self.normal_equations_of_last(level, c));
                     x = x_new;
                     aff = aff_new;
-                    cur = new;
+                    cur = self.assemble(ph, pre, xi, &x, a_imu, aff, sigma2);
                     accepted += 1;
                     lambda = if lambda < 1e-6 { 0.0 } else { lambda * 0.1 };
                     let step_px = f_px
@@ -473,7 +491,79 @@ impl Tracker {
             (aff.0.exp(), aff.1),
             &robust,
             &mut self.scratch,
+            &mut self.inliers,
         ))
+    }
+
+    /// The residual pass of [`Tracker::photometric`] alone: cost and counts, the inliers kept for
+    /// [`Tracker::normal_equations_of_last`]. `None` without a keyframe.
+    fn photometric_cost(
+        &mut self,
+        level: usize,
+        x: &FrameState,
+        aff: (f64, f64),
+    ) -> Option<PhotometricCost> {
+        let kf = self.keyframe.as_ref()?;
+        let t_k_b = kf.t_world_cam.inverse() * pose_of(x);
+        let t_c_k = (t_k_b * self.t_body_cam).inverse();
+        let robust = RobustCost {
+            huber_gray: self.cfg.huber_gray,
+            outlier_gray: self.cfg.outlier_gray,
+            border_px: self.cfg.border_px,
+        };
+        Some(residuals(
+            &kf.levels[level],
+            &kf.cameras[level],
+            self.frame.level(level),
+            &t_c_k,
+            (aff.0.exp(), aff.1),
+            &robust,
+            &mut self.scratch,
+            &mut self.inliers,
+        ))
+    }
+
+    /// The photometric system of the last [`Tracker::photometric_cost`] pass (at `level`, with
+    /// its `cost`): the same sums [`Tracker::photometric`] would have given.
+    fn normal_equations_of_last(
+        &self,
+        level: usize,
+        cost: PhotometricCost,
+    ) -> Option<PhotometricSystem> {
+        let kf = self.keyframe.as_ref()?;
+        Some(normal_equations_of(&kf.levels[level], &self.inliers, cost))
+    }
+
+    /// The cost [`Tracker::assemble`] gives at `x` for a photometric cost `ph_cost` (unweighted,
+    /// `None` = no photometric term): `ph_cost/σ² + brightness prior + ½ rᵀ A r` of the IMU.
+    #[allow(clippy::too_many_arguments)]
+    fn total_cost(
+        &self,
+        ph_cost: Option<f64>,
+        pre: &Preintegration,
+        xi: &FrameState,
+        x: &FrameState,
+        a_imu: &Matrix15,
+        aff: (f64, f64),
+        sigma2: f64,
+    ) -> f64 {
+        let mut cost = 0.0;
+        if let (Some(c), Some(_)) = (ph_cost, &self.keyframe) {
+            cost += c * (1.0 / sigma2);
+            let (wa, wb) = self.brightness_prior_weights();
+            let (ea, eb) = (aff.0 - self.log_gain, aff.1 - self.offset_gray);
+            cost += 0.5 * (wa * ea * ea + wb * eb * eb);
+        }
+        let r = imu_residual(pre, xi, x);
+        cost + 0.5 * r.dot(&(a_imu * r))
+    }
+
+    /// Information of the brightness prior `(log-gain, offset)`.
+    fn brightness_prior_weights(&self) -> (f64, f64) {
+        (
+            1.0 / self.cfg.affine_gain_prior_std.powi(2),
+            1.0 / self.cfg.affine_offset_prior_std_gray.powi(2),
+        )
     }
 
     /// [`Tracker::evaluate`] from an already accumulated photometric system `ph` (of the same
@@ -492,7 +582,7 @@ impl Tracker {
     ) -> Evaluation {
         let mut sys = BlockSystem::<8, 9>::zeros();
         let mut h_ph = SMatrix::<f64, 8, 8>::zeros();
-        let mut cost = 0.0;
+        let cost = self.total_cost(ph.as_ref().map(|p| p.cost), pre, xi, x, a_imu, aff, sigma2);
         let mut ph_out = None;
         if let (Some(ph), Some(kf)) = (ph, &self.keyframe) {
             let t_k_b = kf.t_world_cam.inverse() * pose_of(x);
@@ -503,19 +593,14 @@ impl Tracker {
             let inv_s2 = 1.0 / sigma2;
             sys.h_pp = a8.transpose() * h8 * a8 * inv_s2;
             sys.b_p = a8.transpose() * b8 * inv_s2;
-            cost += ph.cost * inv_s2;
             ph_out = Some(ph);
             // Brightness prior relative to the previous frame's values.
-            let (wa, wb) = (
-                1.0 / self.cfg.affine_gain_prior_std.powi(2),
-                1.0 / self.cfg.affine_offset_prior_std_gray.powi(2),
-            );
+            let (wa, wb) = self.brightness_prior_weights();
             let (ea, eb) = (aff.0 - self.log_gain, aff.1 - self.offset_gray);
             sys.h_pp[(6, 6)] += wa;
             sys.h_pp[(7, 7)] += wb;
             sys.b_p[6] -= wa * ea;
             sys.b_p[7] -= wb * eb;
-            cost += 0.5 * (wa * ea * ea + wb * eb * eb);
             h_ph = sys.h_pp;
         } else {
             // No photometric term: keep the brightness block regular.
@@ -527,7 +612,6 @@ impl Tracker {
         let j = imu_jacobian_j(pre, xi, x);
         let h15 = j.transpose() * a_imu * j;
         let b15 = -(j.transpose() * (a_imu * r));
-        cost += 0.5 * r.dot(&(a_imu * r));
         // Pose columns [θ, t] -> P[0..6]; [v, bω, ba] -> I[0..9].
         let pose = block::VEL; // first 6 entries are the pose
         for a in 0..15 {
@@ -668,10 +752,10 @@ mod tests {
             outlier_gray: 2e6,
             border_px: 1.0,
         };
-        let mut scratch = Vec::new();
-        let residual = |t_wb: &Isometry3<f64>, scratch: &mut Vec<f32>| {
+        let mut scratch = (Vec::new(), Vec::new());
+        let residual = |t_wb: &Isometry3<f64>, (abs_r, inliers): &mut (Vec<f32>, Vec<_>)| {
             let t_ck = (kf.t_world_cam.inverse() * t_wb * t_body_cam).inverse();
-            let s = accumulate(lv, &cam, &img, &t_ck, (1.0, 0.0), &robust, scratch);
+            let s = accumulate(lv, &cam, &img, &t_ck, (1.0, 0.0), &robust, abs_r, inliers);
             s.c[7] // Σ w ĝ r with ĝ[7] = 1 and w = 1: the residual itself
         };
         // Analytic: r(δ) ≈ r0 + J δ with J = −g Ad(T_kb) (gain 1).
