@@ -62,7 +62,7 @@ fn rest_then_takeoff_bootstraps_metric_tracking() {
     let dir = takeoff();
     let out = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
     // Vignetting correction is off by default, although the simulator ships the calibration.
-    assert!(out.vignette_saturated_px.is_none());
+    assert!(!out.odometry.vignette_corrected);
     let phases = &out.phases;
     // Valid poses from the first second: the rest is detected after 0.5 s of IMU.
     assert!(
@@ -72,8 +72,8 @@ fn rest_then_takeoff_bootstraps_metric_tracking() {
     );
     assert_eq!(phases.first(), Some(&Phase::Static));
     let first_tracking = phases.iter().position(|p| *p == Phase::Tracking);
-    let onset = out.onset_t.expect("take-off detected");
-    let since = out.tracking_since.expect("tracking started");
+    let onset = out.odometry.onset_t.expect("take-off detected");
+    let since = out.odometry.tracking_since.expect("tracking started");
     let init_s = since.secs_since(onset);
     println!(
         "frames waiting {}, onset at +{:.2} s, tracking after {:.2} s, phases {:?}",
@@ -128,17 +128,26 @@ fn refinements_applied_frames_late_keep_replays_identical() {
     opts.bootstrap.takeoff_lag_frames = 5;
     let a = replay(&dir, &opts, &mut |_, _| {}).unwrap();
     let b = replay(&dir, &opts, &mut |_, _| {}).unwrap();
-    assert!(!a.keyframe_bundle_s.is_empty(), "no keyframe adjusted");
-    assert_eq!(a.keyframe_bundle_s.len(), b.keyframe_bundle_s.len());
-    // Every adjustment came back 3 frames late: 3 frames tracked again for each.
-    assert_eq!(a.catch_up_frames, 3 * a.keyframe_bundle_s.len());
+    assert!(
+        !a.odometry.keyframe_bundle_s.is_empty(),
+        "no keyframe adjusted"
+    );
     assert_eq!(
-        a.takeoff_refinement_s.len(),
+        a.odometry.keyframe_bundle_s.len(),
+        b.odometry.keyframe_bundle_s.len()
+    );
+    // Every adjustment came back 3 frames late: 3 frames tracked again for each.
+    assert_eq!(
+        a.odometry.catch_up_frames,
+        3 * a.odometry.keyframe_bundle_s.len()
+    );
+    assert_eq!(
+        a.odometry.takeoff_refinement_s.len(),
         2,
         "both take-off passes applied"
     );
-    assert_eq!(a.refinements_discarded, 0);
-    assert_eq!(a.refinements_dropped, 0);
+    assert_eq!(a.odometry.refinements_discarded, 0);
+    assert_eq!(a.odometry.refinements_dropped, 0);
     let (ta, tb) = (trajectory(&a), trajectory(&b));
     assert_eq!(ta.poses.len(), tb.poses.len());
     for (p, q) in ta.poses.iter().zip(&tb.poses) {
@@ -148,7 +157,7 @@ fn refinements_applied_frames_late_keep_replays_identical() {
     let e = eval_against_truth(&dir, &a);
     println!(
         "take-off lag 5, keyframe lag 3 frames: {} keyframes adjusted, ATE {:.2} cm",
-        a.keyframe_bundle_s.len(),
+        a.odometry.keyframe_bundle_s.len(),
         e.ate_rmse_m * 100.0
     );
     assert!(e.ate_rmse_m < 0.03, "{}", e.ate_rmse_m);
@@ -263,10 +272,10 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
         "real time: {} frames in {wall_s:.2} s, mapper jobs dropped {}, keyframe adjustments \
          applied {} (dropped {}, discarded {})",
         out.frames.len(),
-        out.jobs_dropped,
-        out.keyframe_bundle_s.len(),
-        out.refinements_dropped,
-        out.refinements_discarded
+        out.odometry.jobs_dropped,
+        out.odometry.keyframe_bundle_s.len(),
+        out.odometry.refinements_dropped,
+        out.odometry.refinements_discarded
     );
 }
 
@@ -286,10 +295,10 @@ fn a_late_takeoff_refinement_pass_still_starts_tracking() {
     let tracked = out.phases.iter().filter(|p| **p == Phase::Tracking).count();
     println!(
         "take-off passes applied {:?}, frames tracked {tracked}",
-        out.takeoff_scale_corrections
+        out.odometry.takeoff_scales
     );
     assert_eq!(
-        out.takeoff_scale_corrections.len(),
+        out.odometry.takeoff_scales.len(),
         1,
         "one pass, the late one"
     );
@@ -334,10 +343,7 @@ fn vignetting_correction_runs_through_the_pipeline() {
     let mut opts = ReplayOptions::default();
     opts.tracker.correct_vignetting = true;
     let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
-    assert!(
-        out.vignette_saturated_px.is_some(),
-        "correction not applied"
-    );
+    assert!(out.odometry.vignette_corrected, "correction not applied");
     let e = eval_against_truth(&dir, &out);
     println!(
         "take-off with vignetting corrected: ATE {:.3} m",
@@ -386,23 +392,23 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
         "with reuse and fill: ATE {:.2} cm, {} resets, {} keyframes, {} returns ({} failed), {} \
          stored; without: ATE {:.2} cm, {} resets, {} keyframes",
         e_with.ate_rmse_m * 100.0,
-        with.resets,
-        with.keyframes,
-        with.keyframe_reuses,
-        with.keyframe_reuse_failures,
-        with.keyframes_stored,
+        with.odometry.resets,
+        with.odometry.keyframes,
+        with.odometry.keyframe_reuses,
+        with.odometry.keyframe_reuse_failures,
+        with.odometry.keyframes_stored,
         e_without.ate_rmse_m * 100.0,
-        without.resets,
-        without.keyframes
+        without.odometry.resets,
+        without.odometry.keyframes
     );
-    assert!(with.keyframe_reuses > 0);
-    assert_eq!(without.keyframe_reuses, 0);
-    assert_eq!(without.keyframes_stored, 0);
+    assert!(with.odometry.keyframe_reuses > 0);
+    assert_eq!(without.odometry.keyframe_reuses, 0);
+    assert_eq!(without.odometry.keyframes_stored, 0);
     // Back on the first lap's maps, fewer new keyframes are needed…
-    assert!(with.keyframes < without.keyframes);
+    assert!(with.odometry.keyframes < without.odometry.keyframes);
     // …the turn on the spot is tracked through (it is lost without the depthless pixels)…
-    assert_eq!(with.resets, 0);
-    assert!(without.resets > 0);
+    assert_eq!(with.odometry.resets, 0);
+    assert!(without.odometry.resets > 0);
     // …and the drift of the first lap is not carried on.
     assert!(e_with.ate_rmse_m < e_without.ate_rmse_m);
     assert!(
@@ -412,9 +418,10 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     // The scale observer follows the whole flight (through the returns to stored keyframes,
     // whose jumps it steps over) and, on this ideal render, finds the tracked trajectory
     // metric: the IMU agrees with the maps' scale.
-    let mut scales: Vec<f64> = with.imu_scale.iter().map(|e| e.scale).collect();
+    let mut scales: Vec<f64> = with.odometry.imu_scale.iter().map(|e| e.scale).collect();
     scales.sort_by(f64::total_cmp);
     let last_t = with
+        .odometry
         .imu_scale
         .last()
         .map(|e| e.t.secs_since(with.frames[0].t));
@@ -434,7 +441,7 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     // only where the vehicle is (nearly) at rest: after the take-off, every frame whose velocity is
     // exactly zero has a true speed under the updates' bound (the end of the hover turn, where
     // the turn has stopped and the descent barely begun, counts: 4 cm/s).
-    assert!(with.zero_velocity_updates > 0);
+    assert!(with.odometry.zero_velocity_updates > 0);
     let gt = AslDataset::open(&dir)
         .unwrap()
         .ground_truth()
@@ -449,7 +456,7 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
         .iter()
         .filter(|r| r.state.nav.v_world_m_s.norm() == 0.0)
         .collect();
-    assert_eq!(stopped.len(), with.zero_velocity_updates);
+    assert_eq!(stopped.len(), with.odometry.zero_velocity_updates);
     let bound = base_zupt_max_speed_m_s;
     for r in stopped {
         let truth = gt.nearest(r.t, 5_000_000).unwrap();
@@ -497,12 +504,12 @@ fn the_landing_after_the_turn_on_the_spot_takes_the_imu_scale() {
     let ratio = (est1 - est0).norm() / (true1 - true0).norm();
     println!(
         "guessed keyframes rescaled by {:?}; descent {:.3} m, {ratio:.3} x the truth",
-        out.guessed_keyframe_scales,
+        out.odometry.guessed_keyframe_scales,
         (true1 - true0).norm()
     );
     assert!((true1 - true0).norm() > 1.0, "not the landing");
     assert!(
-        !out.guessed_keyframe_scales.is_empty(),
+        !out.odometry.guessed_keyframe_scales.is_empty(),
         "no keyframe tracked with guessed depths was adjusted"
     );
     assert!((ratio - 1.0).abs() < 0.03, "descent {ratio} x the truth");
@@ -525,11 +532,11 @@ fn takeoff_refinement_passes_keep_a_correct_first_map_scale() {
     // Apply every pass, however small its correction, so that the passes are exercised.
     opts.bootstrap.takeoff_min_significance_sigmas = 0.0;
     let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
-    let scales = &out.takeoff_scale_corrections;
+    let scales = &out.odometry.takeoff_scales;
     println!("take-off scale corrections {scales:?}");
     assert_eq!(scales.len(), 2, "{scales:?}");
     assert!(scales.iter().all(|s| (s - 1.0).abs() < 0.08), "{scales:?}");
-    assert!(out.tracking_since.is_some());
+    assert!(out.odometry.tracking_since.is_some());
     assert!(out.frames.iter().all(|r| r.state.is_finite()));
     let e = eval_against_truth(&dir, &out);
     println!(

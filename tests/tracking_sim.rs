@@ -7,7 +7,8 @@ use nalgebra::{UnitQuaternion, Vector3};
 use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, FrameRecord, GroundTruth};
 use vidslam::image::Image;
-use vidslam::imu::{FrameState, ImuBias, Matrix15, NavState, Preintegration};
+use vidslam::imu::{FrameState, Matrix15, Preintegration};
+use vidslam::runtime::replay::start_state;
 use vidslam::runtime::{DepthSource, ReplayOptions, replay, trajectory};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::tracking::{
@@ -48,20 +49,9 @@ fn fixture() -> Fixture {
     Fixture { ds, gt, frames }
 }
 
+/// The ground-truth state at frame `f` (the simulator's ground truth has velocity and biases).
 fn gt_state(gt: &GroundTruth, f: &FrameRecord) -> FrameState {
-    let s = gt.nearest(f.t, 0).unwrap();
-    FrameState {
-        nav: NavState {
-            t: f.t,
-            r_world_body: s.t_world_body.rotation,
-            p_world_m: s.t_world_body.translation.vector,
-            v_world_m_s: s.v_world_m_s.unwrap(),
-        },
-        bias: ImuBias {
-            gyro_rad_s: s.gyro_bias_rad_s.unwrap(),
-            accel_m_s2: s.accel_bias_m_s2.unwrap(),
-        },
-    }
+    start_state(gt, f.t).unwrap()
 }
 
 /// A tracker whose keyframe is frame `kf` at its ground-truth pose with ground-truth depth.
@@ -266,7 +256,7 @@ fn short_replay_is_accurate_deterministic_and_better_than_the_imu_alone() {
     println!(
         "3 s replay, {} frames, {} keyframes: max position error vision+IMU {:.1} mm, IMU only {:.1} mm",
         a.frames.len(),
-        a.keyframes,
+        a.odometry.keyframes,
         ev * 1e3,
         ei * 1e3
     );

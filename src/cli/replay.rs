@@ -149,9 +149,9 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         std::fs::write(&p, keyframes_csv(&depth_rows))
             .with_context(|| format!("writing {}", p.display()))?;
     }
-    if !out.imu_scale.is_empty() {
+    if !out.odometry.imu_scale.is_empty() {
         let p = a.out.join("imu_scale.csv");
-        std::fs::write(&p, imu_scale_csv(&out.imu_scale))
+        std::fs::write(&p, imu_scale_csv(&out.odometry.imu_scale))
             .with_context(|| format!("writing {}", p.display()))?;
     }
     let csv_path = a.out.join("frames.csv");

@@ -9,8 +9,8 @@
 use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
-use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, Phase, Rig};
-use super::scale_observer::{ScaleObserverConfig, ScaleSample};
+use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, OdometryStats, Phase, Rig};
+use super::scale_observer::ScaleObserverConfig;
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
@@ -138,50 +138,12 @@ pub struct ReplayOutput {
     pub phases: Vec<Phase>,
     /// Frames read before the first valid pose (no rest detected yet).
     pub frames_waiting: usize,
-    /// Motion onset (back-dated) and first tracked frame after it.
-    pub onset_t: Option<TimeNs>,
-    pub tracking_since: Option<TimeNs>,
-    /// Re-initialisations after tracking loss.
-    pub resets: u32,
-    /// Mapper jobs dropped (real-time mode only).
-    pub jobs_dropped: usize,
     /// What the mapping thread built (empty with ground-truth depth).
     pub mapping: MappingOutput,
     /// Frames of the dataset inside the replayed span.
     pub frames_in: usize,
-    /// Keyframes created.
-    pub keyframes: usize,
-    /// Returns to a stored keyframe instead of a new one, of which failed at once, and
-    /// keyframes stored for that (`[reuse]`).
-    pub keyframe_reuses: usize,
-    pub keyframe_reuse_failures: usize,
-    pub keyframes_stored: usize,
-    /// Frames whose velocity was set to zero (the vehicle at rest).
-    pub zero_velocity_updates: usize,
-    /// Scale factor applied to the first map by each take-off refinement pass
-    /// (`[bootstrap] refine_takeoff_passes`).
-    pub takeoff_scale_corrections: Vec<f64>,
-    /// Wall time of each applied take-off refinement pass, s.
-    pub takeoff_refinement_s: Vec<f64>,
-    /// Wall time of each keyframe-window solve, s.
-    pub window_solve_s: Vec<f64>,
-    /// The map scale measured against the IMU at each new keyframe (`[scale_observer]`).
-    pub imu_scale: Vec<ScaleSample>,
-    /// Wall time and median relative inverse-depth change of each in-flight keyframe
-    /// adjustment (`[keyframe_bundle]`).
-    pub keyframe_bundle_s: Vec<f64>,
-    pub keyframe_bundle_depth_changes: Vec<f64>,
-    /// Take-off refinements and keyframe adjustments not started (their thread busy, real time)
-    /// and discarded (superseded, or their keyframe no longer tracked when they came back).
-    pub refinements_dropped: usize,
-    pub refinements_discarded: usize,
-    /// Frames tracked again against an adjusted keyframe that came back after them.
-    pub catch_up_frames: usize,
-    /// Scale change of each keyframe tracked with guessed depths, then adjusted with its depths
-    /// free (`[keyframe_bundle] guessed_min_baseline_ratio`).
-    pub guessed_keyframe_scales: Vec<f64>,
-    /// `Some(pixels clipped)` if the images were divided by `cam0/vignette.yaml`.
-    pub vignette_saturated_px: Option<u64>,
+    /// The odometry's counters and timings (with ground-truth depth only `keyframes`).
+    pub odometry: OdometryStats,
 }
 
 /// Progress callback: `(frames done, frames total)`.
@@ -317,28 +279,7 @@ fn replay_full(
         progress(k + 1, span.len());
     }
     let (stats, mapping) = odo.finish();
-    out.onset_t = stats.onset_t;
-    out.tracking_since = stats.tracking_since;
-    out.resets = stats.resets;
-    out.keyframes = stats.keyframes;
-    out.keyframe_reuses = stats.keyframe_reuses;
-    out.keyframe_reuse_failures = stats.keyframe_reuse_failures;
-    out.keyframes_stored = stats.keyframes_stored;
-    out.zero_velocity_updates = stats.zero_velocity_updates;
-    out.takeoff_scale_corrections = stats.takeoff_scales.clone();
-    out.takeoff_refinement_s = stats.takeoff_refinement_s.clone();
-    out.jobs_dropped = stats.jobs_dropped;
-    out.window_solve_s = stats.window_solve_s;
-    out.imu_scale = stats.imu_scale;
-    out.keyframe_bundle_s = stats.keyframe_bundle_s;
-    out.keyframe_bundle_depth_changes = stats.keyframe_bundle_depth_changes;
-    out.refinements_dropped = stats.refinements_dropped;
-    out.refinements_discarded = stats.refinements_discarded;
-    out.catch_up_frames = stats.catch_up_frames;
-    out.guessed_keyframe_scales = stats.guessed_keyframe_scales;
-    out.vignette_saturated_px = stats
-        .vignette_corrected
-        .then_some(stats.vignette_saturated_px);
+    out.odometry = stats;
     out.mapping = mapping;
     Ok(out)
 }
@@ -392,7 +333,7 @@ fn replay_gt_depth(
             let kf = ground_truth_keyframe(&ds, &mut tracker, &cam, rec.t, next_kf_id)?;
             tracker.set_keyframe(kf);
             next_kf_id += 1;
-            out.keyframes += 1;
+            out.odometry.keyframes += 1;
         }
         prev_t = rec.t;
         progress(k + 1, span.len());

@@ -137,14 +137,25 @@ impl ReplayReport {
         let pct = |p: f64| percentile(&ms, p);
         let mut map_ms: Vec<f64> = out.mapping.job_times_s.iter().map(|t| t * 1e3).collect();
         map_ms.sort_by(f64::total_cmp);
-        let mut imu_scale: Vec<f64> = out.imu_scale.iter().map(|e| e.scale).collect();
+        let mut imu_scale: Vec<f64> = out.odometry.imu_scale.iter().map(|e| e.scale).collect();
         imu_scale.sort_by(f64::total_cmp);
         let imu_scale_pct = |p: f64| (!imu_scale.is_empty()).then(|| percentile(&imu_scale, p));
-        let mut window_ms: Vec<f64> = out.window_solve_s.iter().map(|t| t * 1e3).collect();
+        let mut window_ms: Vec<f64> = out
+            .odometry
+            .window_solve_s
+            .iter()
+            .map(|t| t * 1e3)
+            .collect();
         window_ms.sort_by(f64::total_cmp);
-        let mut kb_ms: Vec<f64> = out.keyframe_bundle_s.iter().map(|t| t * 1e3).collect();
+        let mut kb_ms: Vec<f64> = out
+            .odometry
+            .keyframe_bundle_s
+            .iter()
+            .map(|t| t * 1e3)
+            .collect();
         kb_ms.sort_by(f64::total_cmp);
         let mut kb_change: Vec<f64> = out
+            .odometry
             .keyframe_bundle_depth_changes
             .iter()
             .map(|c| c * 100.0)
@@ -179,13 +190,18 @@ impl ReplayReport {
             frames_tracked: out.frames.len() - flagged,
             frames_flagged: flagged,
             flags,
-            keyframes: out.keyframes,
-            keyframe_reuses: out.keyframe_reuses,
-            keyframe_reuse_failures: out.keyframe_reuse_failures,
-            keyframes_stored: out.keyframes_stored,
-            zero_velocity_updates: out.zero_velocity_updates,
-            takeoff_scale_corrections: out.takeoff_scale_corrections.clone(),
-            takeoff_refinement_ms: out.takeoff_refinement_s.iter().map(|s| s * 1e3).collect(),
+            keyframes: out.odometry.keyframes,
+            keyframe_reuses: out.odometry.keyframe_reuses,
+            keyframe_reuse_failures: out.odometry.keyframe_reuse_failures,
+            keyframes_stored: out.odometry.keyframes_stored,
+            zero_velocity_updates: out.odometry.zero_velocity_updates,
+            takeoff_scale_corrections: out.odometry.takeoff_scales.clone(),
+            takeoff_refinement_ms: out
+                .odometry
+                .takeoff_refinement_s
+                .iter()
+                .map(|s| s * 1e3)
+                .collect(),
             tracking_ms_p50: pct(50.0),
             tracking_ms_p99: pct(99.0),
             tracking_ms_max: ms.last().copied().unwrap_or(0.0),
@@ -210,12 +226,12 @@ impl ReplayReport {
             realtime,
             frames_waiting: out.frames_waiting,
             phases,
-            init_time_s: match (out.onset_t, out.tracking_since) {
+            init_time_s: match (out.odometry.onset_t, out.odometry.tracking_since) {
                 (Some(a), Some(b)) => Some(b.secs_since(a)),
                 _ => None,
             },
-            resets: out.resets,
-            mapping_jobs_dropped: out.jobs_dropped,
+            resets: out.odometry.resets,
+            mapping_jobs_dropped: out.odometry.jobs_dropped,
             mapping_views_skipped: out.mapping.views_skipped,
             mapping_ms_mean: if map_ms.is_empty() {
                 0.0
@@ -224,23 +240,23 @@ impl ReplayReport {
             },
             mapping_ms_p50: percentile(&map_ms, 50.0),
             mapping_ms_p99: percentile(&map_ms, 99.0),
-            window_solves: out.window_solve_s.len(),
+            window_solves: out.odometry.window_solve_s.len(),
             window_ms_p50: percentile(&window_ms, 50.0),
             window_ms_max: window_ms.iter().copied().fold(0.0, f64::max),
             keyframe_bundles: kb_ms.len(),
             keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
             keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),
             keyframe_bundle_depth_change_median_pct: percentile(&kb_change, 50.0),
-            refinements_dropped: out.refinements_dropped,
-            refinements_discarded: out.refinements_discarded,
-            keyframe_bundle_catch_up_frames: out.catch_up_frames,
-            guessed_keyframe_scales: out.guessed_keyframe_scales.clone(),
+            refinements_dropped: out.odometry.refinements_dropped,
+            refinements_discarded: out.odometry.refinements_discarded,
+            keyframe_bundle_catch_up_frames: out.odometry.catch_up_frames,
+            guessed_keyframe_scales: out.odometry.guessed_keyframe_scales.clone(),
             imu_scale_estimates: imu_scale.len(),
             imu_scale_p10: imu_scale_pct(10.0),
             imu_scale_p50: imu_scale_pct(50.0),
             imu_scale_p90: imu_scale_pct(90.0),
-            vignette_corrected: out.vignette_saturated_px.is_some(),
-            vignette_saturated_px: out.vignette_saturated_px.unwrap_or(0),
+            vignette_corrected: out.odometry.vignette_corrected,
+            vignette_saturated_px: out.odometry.vignette_saturated_px,
             semidense_points: out
                 .mapping
                 .keyframe_maps
