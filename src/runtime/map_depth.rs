@@ -29,18 +29,26 @@ pub struct KeyframeDepthError {
     pub inv_depth_error_fit_m_inv: [f64; 3],
 }
 
+/// `map`'s points that have a ground-truth depth at their pixel: `(x_px, y_px, ρ, z)` with
+/// `ρ > 0` the map's inverse depth (1/m) and `z > 0` the rendered depth (m).
+fn points_with_depth<'a>(
+    map: &'a SemidenseMap,
+    depth: &'a Image<f32>,
+) -> impl Iterator<Item = (usize, usize, f64, f64)> + 'a {
+    map.points.iter().filter_map(|p| {
+        let (x, y) = (p.u_px.round() as usize, p.v_px.round() as usize);
+        if x >= depth.width() || y >= depth.height() || p.inv_depth_m_inv <= 0.0 {
+            return None;
+        }
+        let z = depth.get(x, y) as f64;
+        (z > 0.0).then_some((x, y, p.inv_depth_m_inv as f64, z))
+    })
+}
+
 /// Signed relative depth errors of `map`'s points against `depth` (pixels without depth skipped).
 pub fn relative_errors(map: &SemidenseMap, depth: &Image<f32>) -> Vec<f64> {
-    map.points
-        .iter()
-        .filter_map(|p| {
-            let (x, y) = (p.u_px.round() as usize, p.v_px.round() as usize);
-            if x >= depth.width() || y >= depth.height() || p.inv_depth_m_inv <= 0.0 {
-                return None;
-            }
-            let z = depth.get(x, y) as f64;
-            (z > 0.0).then(|| (1.0 / p.inv_depth_m_inv as f64 - z) / z)
-        })
+    points_with_depth(map, depth)
+        .map(|(_, _, rho, z)| (1.0 / rho - z) / z)
         .collect()
 }
 
@@ -51,18 +59,10 @@ pub fn inverse_depth_error_fit(map: &SemidenseMap, depth: &Image<f32>) -> [f64; 
     let (w, h) = (depth.width() as f64, depth.height() as f64);
     let mut ata = Matrix3::<f64>::zeros();
     let mut atb = Vector3::<f64>::zeros();
-    for p in &map.points {
-        let (x, y) = (p.u_px.round() as usize, p.v_px.round() as usize);
-        if x >= depth.width() || y >= depth.height() || p.inv_depth_m_inv <= 0.0 {
-            continue;
-        }
-        let z = depth.get(x, y) as f64;
-        if z.is_nan() || z <= 0.0 {
-            continue;
-        }
+    for (x, y, rho, z) in points_with_depth(map, depth) {
         let row = Vector3::new(1.0, 2.0 * x as f64 / w - 1.0, 2.0 * y as f64 / h - 1.0);
         ata += row * row.transpose();
-        atb += row * (p.inv_depth_m_inv as f64 - 1.0 / z);
+        atb += row * (rho - 1.0 / z);
     }
     // The squared pivots over the point count are the variances of x and y left after the
     // offset (and x) are fitted: less than a pixel's worth leaves that slope undetermined.

@@ -22,8 +22,8 @@
 use super::config::{NUM_LEVELS, TrackerConfig};
 use super::keyframe::Keyframe;
 use super::photometric::{
-    PhotometricCost, PhotometricSystem, RobustCost, WeightedResidual, accumulate,
-    normal_equations_of, residuals,
+    PhotometricCost, PhotometricSystem, RobustCost, WeightedResidual, normal_equations_of,
+    residuals,
 };
 use super::schur::BlockSystem;
 use crate::camera::CameraModel;
@@ -475,24 +475,8 @@ impl Tracker {
         x: &FrameState,
         aff: (f64, f64),
     ) -> Option<PhotometricSystem> {
-        let kf = self.keyframe.as_ref()?;
-        let t_k_b = kf.t_world_cam.inverse() * pose_of(x);
-        let t_c_k = (t_k_b * self.t_body_cam).inverse();
-        let robust = RobustCost {
-            huber_gray: self.cfg.huber_gray,
-            outlier_gray: self.cfg.outlier_gray,
-            border_px: self.cfg.border_px,
-        };
-        Some(accumulate(
-            &kf.levels[level],
-            &kf.cameras[level],
-            self.frame.level(level),
-            &t_c_k,
-            (aff.0.exp(), aff.1),
-            &robust,
-            &mut self.scratch,
-            &mut self.inliers,
-        ))
+        let cost = self.photometric_cost(level, x, aff)?;
+        self.normal_equations_of_last(level, cost)
     }
 
     /// The residual pass of [`Tracker::photometric`] alone: cost and counts, the inliers kept for
@@ -707,6 +691,7 @@ mod tests {
     use super::*;
     use crate::geometry::boxplus_se3;
     use crate::tracking::keyframe::{DepthPoint, Keyframe};
+    use crate::tracking::photometric::accumulate;
     use nalgebra::{Translation3, UnitQuaternion, Vector6};
 
     /// The photometric Jacobian w.r.t. the body increment, `J_ε Ad(T_kb)`, against numeric
