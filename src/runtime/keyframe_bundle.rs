@@ -16,15 +16,16 @@
 //! many of them).
 
 use super::mapping_worker::MapFrame;
-use crate::image::Pyramid;
+use crate::image::{Image, Pyramid};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Preintegration};
 use crate::smoother::photometric_bundle::{
-    BundleConfig, BundleView, HostPoints, PhotometricBundle,
+    BundleConfig, BundleView, ChainHost, HostPoints, PhotometricBundle,
 };
 use crate::tracking::pose_of;
 use crate::tracking::{DepthPoint, Keyframe};
 use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// Settings of the in-flight keyframe adjustment (the `[keyframe_bundle]` table).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -63,6 +64,17 @@ pub struct KeyframeBundleConfig {
     /// mapper built it) only once the keyframe tracked meanwhile keeps fewer than this fraction
     /// of its points as inliers. Offline the adjustment is always waited for.
     pub give_up_inlier_ratio: f64,
+    /// Adjust a new keyframe together with the keyframe tracked when it was started: that one is
+    /// the gauge (its pose fixed, its depths free), the frames tracked against it up to the new
+    /// keyframe join the IMU chain, and the new keyframe's pose is free instead of taken as
+    /// tracking left it.
+    pub previous_host: bool,
+    /// At most this many of the frames between the two keyframes go into that adjustment (evenly
+    /// spaced, the last one included; the IMU is preintegrated across the others).
+    pub previous_host_max_frames: usize,
+    /// Prior standard deviation of the previous keyframe's velocity around the window's
+    /// estimate in that adjustment, m/s: the chain is long enough for the frames to tell it.
+    pub previous_host_velocity_std_m_s: f64,
 }
 
 impl Default for KeyframeBundleConfig {
@@ -80,6 +92,9 @@ impl Default for KeyframeBundleConfig {
             guessed_min_baseline_ratio: 0.1,
             guessed_max_views: 10,
             give_up_inlier_ratio: 0.3,
+            previous_host: false,
+            previous_host_max_frames: 6,
+            previous_host_velocity_std_m_s: 0.1,
         }
     }
 }
@@ -93,6 +108,20 @@ pub struct KeyframeRecord {
     pub start: FrameState,
     /// Frames tracked since, with their tracked states, oldest first (world frame).
     pub views: Vec<(MapFrame, FrameState)>,
+    /// The keyframe tracked when this one was started, for `[keyframe_bundle] previous_host`.
+    pub previous: Option<Box<PreviousHost>>,
+}
+
+/// The keyframe tracked when a new one was started, and the frames tracked against it up to the
+/// new one.
+#[derive(Clone, Debug)]
+pub struct PreviousHost {
+    pub keyframe: Keyframe,
+    pub image: Arc<Image<u8>>,
+    /// Its body state (the keyframe window's, consistent with `keyframe.t_world_cam`).
+    pub state: FrameState,
+    /// Frames tracked between it and the new keyframe with their states, oldest first.
+    pub frames: Vec<(MapFrame, FrameState)>,
 }
 
 /// What the adjustment produced.
@@ -102,6 +131,9 @@ pub struct AdjustedKeyframe {
     pub points: Vec<DepthPoint>,
     /// The views' adjusted states, oldest first.
     pub views: Vec<FrameState>,
+    /// The keyframe's own adjusted state when its pose was free (adjusted with the previous
+    /// keyframe as the gauge), `None` when its pose was the gauge.
+    pub keyframe_state: Option<FrameState>,
     /// Median relative change of the inverse depths.
     pub median_inv_depth_change: f64,
     /// Median of adjusted / given inverse depth (the map's scale change is its inverse).
@@ -155,8 +187,19 @@ pub fn imu_chain(
         .collect()
 }
 
+/// At most `max` of `items` (at least one), evenly spaced, the last one included.
+pub fn evenly_spaced<T: Clone>(items: &[T], max: usize) -> Vec<T> {
+    let (n, max) = (items.len(), max.max(1));
+    if n <= max {
+        return items.to_vec();
+    }
+    (1..=max).map(|k| items[k * n / max - 1].clone()).collect()
+}
+
 /// Adjusts keyframe `kf` (its image pyramid `host_pyr`) with the views of `rec`; `imu` must cover the
-/// keyframe's time onwards. `None` if there is too little to adjust or the solution is unsound.
+/// keyframe's time onwards (the previous keyframe's, with `[keyframe_bundle] previous_host` and
+/// `rec.previous`: the two are adjusted together, the previous one the gauge). `None` if there is
+/// too little to adjust or the solution is unsound.
 #[allow(clippy::too_many_arguments)]
 pub fn bundle_adjust_keyframe(
     rec: &KeyframeRecord,
@@ -169,35 +212,71 @@ pub fn bundle_adjust_keyframe(
     gradient_weight_gray_px: f32,
     cfg: &KeyframeBundleConfig,
 ) -> Option<AdjustedKeyframe> {
-    let start = rec.start;
-    if rec.views.len() < cfg.min_views.max(1) || imu.first().is_none_or(|s| s.t > start.nav.t) {
+    let covers = |t| imu.first().is_some_and(|s| s.t <= t);
+    let prev = rec
+        .previous
+        .as_deref()
+        .filter(|p| cfg.previous_host && covers(p.state.nav.t));
+    let start = prev.map_or(rec.start, |p| p.state);
+    if rec.views.len() < cfg.min_views.max(1) || !covers(start.nav.t) {
         return None;
     }
     let levels = host_pyr.num_levels();
     let inflate = (tracker_imu_noise_scale * cfg.imu_noise_factor).powi(2);
+    // The chain: [frames between the two keyframes, the keyframe itself,] the keyframe's views.
+    let between = prev.map_or_else(Vec::new, |p| {
+        evenly_spaced(&p.frames, cfg.previous_host_max_frames)
+    });
+    let n_before = prev.map_or(0, |_| between.len() + 1);
+    let kf_view = prev.map(|_| (rec.start.nav.t, rec.start));
+    let frames: Vec<(crate::time::TimeNs, FrameState)> = between
+        .iter()
+        .map(|(f, x)| (f.t, *x))
+        .chain(kf_view)
+        .chain(rec.views.iter().map(|(f, x)| (f.t, *x)))
+        .collect();
     let pres = imu_chain(
         start.nav.t,
-        rec.views.iter().map(|(f, _)| f.t),
+        frames.iter().map(|(t, _)| *t),
         &start.bias,
         imu,
         &noise,
         inflate,
     );
+    let between_pyrs: Vec<Pyramid> = between
+        .iter()
+        .map(|(f, _)| Pyramid::from_u8(&f.image, levels))
+        .collect();
     let view_pyrs: Vec<Pyramid> = rec
         .views
         .iter()
         .map(|(f, _)| Pyramid::from_u8(&f.image, levels))
         .collect();
-    let host = host_points(kf, host_pyr, gradient_weight_gray_px);
+    let pyramids = between_pyrs
+        .iter()
+        .chain(kf_view.map(|_| host_pyr))
+        .chain(&view_pyrs);
+    let own = host_points(kf, host_pyr, gradient_weight_gray_px);
+    let (t_world_host_cam, host, chain_hosts) = match prev {
+        Some(p) => {
+            let pyr = Pyramid::from_u8(&p.image, levels);
+            let gauge = host_points(&p.keyframe, &pyr, gradient_weight_gray_px);
+            let chain = ChainHost {
+                view: between.len(),
+                points: own,
+            };
+            (p.keyframe.t_world_cam, gauge, vec![chain])
+        }
+        None => (kf.t_world_cam, own, Vec::new()),
+    };
     let problem = PhotometricBundle {
-        t_world_host_cam: kf.t_world_cam,
+        t_world_host_cam,
         t_body_cam,
         host,
         start,
-        views: rec
-            .views
+        views: frames
             .iter()
-            .zip(&view_pyrs)
+            .zip(pyramids)
             .zip(pres)
             .map(|(((_, x), pyramid), pre)| BundleView {
                 pyramid,
@@ -205,25 +284,32 @@ pub fn bundle_adjust_keyframe(
                 pre,
             })
             .collect(),
+        chain_hosts,
         noise,
         cfg: BundleConfig {
             iterations_per_level: cfg.iterations_per_level,
-            start_velocity_std_m_s: cfg.velocity_std_m_s,
+            start_velocity_std_m_s: match prev {
+                Some(_) => cfg.previous_host_velocity_std_m_s,
+                None => cfg.velocity_std_m_s,
+            },
             accel_bias_std_m_s2: cfg.accel_bias_std_m_s2,
             smoothness_rel_std: cfg.smoothness_rel_std,
             initial_depth_rel_std: cfg.depth_rel_std,
             ..BundleConfig::default()
         },
     };
-    let r = problem.solve()?;
+    let mut r = problem.solve()?;
+    let (given, adjusted) = match problem.chain_hosts.first() {
+        Some(c) => (&c.points, r.chain_host_inv_depth_m_inv.first()?),
+        None => (&problem.host, &r.inv_depth_m_inv),
+    };
     let cam = kf.cameras.first()?;
-    let given = &problem.host;
     let mut changes = Vec::with_capacity(given.rays.len());
     let mut ratios = Vec::with_capacity(given.rays.len());
     let points: Vec<DepthPoint> = given
         .rays
         .iter()
-        .zip(&r.inv_depth_m_inv)
+        .zip(adjusted)
         .zip(&given.inv_depth_m_inv)
         .filter_map(|((ray, &rho), &rho0)| {
             if !(rho.is_finite() && rho > 0.0) {
@@ -245,9 +331,11 @@ pub fn bundle_adjust_keyframe(
     let mid = changes.len() / 2;
     let median_inv_depth_change = *changes.select_nth_unstable_by(mid, f64::total_cmp).1;
     let median_inv_depth_ratio = *ratios.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let keyframe_state = n_before.checked_sub(1).map(|k| r.views[k]);
     Some(AdjustedKeyframe {
         points,
-        views: r.views,
+        views: r.views.split_off(n_before),
+        keyframe_state,
         median_inv_depth_change,
         median_inv_depth_ratio,
     })
@@ -308,6 +396,16 @@ mod tests {
             [0.5, 0.0, -0.1],
             0.01,
         )
+    }
+
+    #[test]
+    fn evenly_spaced_keeps_the_last_item_and_at_most_max() {
+        let items: Vec<u32> = (0..10).collect();
+        assert_eq!(evenly_spaced(&items, 3), vec![2, 5, 9]);
+        assert_eq!(evenly_spaced(&items, 10), items);
+        assert_eq!(evenly_spaced(&items, 20), items);
+        assert_eq!(evenly_spaced(&items, 0), vec![9]);
+        assert!(evenly_spaced::<u32>(&[], 4).is_empty());
     }
 
     #[test]

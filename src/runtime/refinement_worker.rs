@@ -91,6 +91,9 @@ pub struct ReadyKeyframe {
     pub keyframe: Keyframe,
     /// Adjusted state of the last view.
     pub last_view: FrameState,
+    /// The keyframe's adjusted state when its pose was free (`[keyframe_bundle] previous_host`);
+    /// `keyframe` is posed there.
+    pub keyframe_state: Option<FrameState>,
     /// Median relative change of the inverse depths.
     pub median_inv_depth_change: f64,
     /// Median of adjusted / given inverse depth.
@@ -219,18 +222,22 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyfram
         cfg,
     )?;
     let last_view = *a.views.last()?;
+    let t_world_cam = a.keyframe_state.map_or(job.kf.t_world_cam, |x| {
+        crate::tracking::pose_of(&x) * s.t_body_cam
+    });
     let keyframe = Keyframe::new(
         job.kf.id,
         job.kf.t,
         &job.pyramid,
         &s.camera,
-        job.kf.t_world_cam,
+        t_world_cam,
         &a.points,
         &s.tracking,
     );
     Some(ReadyKeyframe {
         keyframe,
         last_view,
+        keyframe_state: a.keyframe_state,
         median_inv_depth_change: a.median_inv_depth_change,
         median_inv_depth_ratio: a.median_inv_depth_ratio,
     })

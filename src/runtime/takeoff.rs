@@ -275,6 +275,7 @@ pub fn bundle_adjust_takeoff(
                 pre,
             })
             .collect(),
+        chain_hosts: Vec::new(),
         noise,
         cfg: cfg.clone(),
     };

@@ -162,6 +162,13 @@ impl KeyframeWindow {
         self.nodes.iter().find(|n| n.id == id).map(|n| &n.state)
     }
 
+    /// Moves keyframe `id`'s state to `x` (adjusted elsewhere); the factors and the prior stay.
+    pub fn set_state(&mut self, id: u32, x: &FrameState) {
+        if let Some(n) = self.nodes.iter_mut().find(|n| n.id == id) {
+            n.state = *x;
+        }
+    }
+
     /// Ids and states of the keyframes in the window, oldest first.
     pub fn states(&self) -> impl Iterator<Item = (u32, &FrameState)> + '_ {
         self.nodes.iter().map(|n| (n.id, &n.state))

@@ -96,12 +96,14 @@ impl Odometry {
             })
             .collect();
         let id = self.next_kf_id;
+        let previous = self.previous_host(&frame);
         self.kf_record =
             (self.phase == Phase::Tracking && self.cfg.keyframe_bundle.enabled).then(|| {
                 KeyframeRecord {
                     id,
                     start: *self.tracker.state(),
                     views: Vec::new(),
+                    previous,
                 }
             });
         self.mapper_kf_pose = Some((id, frame.t_world_cam));
@@ -122,6 +124,36 @@ impl Odometry {
             seed,
             inv_depth_range_m_inv: range,
         });
+    }
+
+    /// The keyframe tracked when the keyframe of `frame` is started, with the frames tracked
+    /// against it since, for `[keyframe_bundle] previous_host` — if it is the keyframe window's
+    /// newest (its state is known there) and was mapped, not a stored one or one of guesses.
+    fn previous_host(&self, frame: &MapFrame) -> Option<Box<PreviousHost>> {
+        if !self.cfg.keyframe_bundle.previous_host
+            || self.phase != Phase::Tracking
+            || self.reusing
+            || self.tracking_kf_filled
+        {
+            return None;
+        }
+        let kf = self.tracker.keyframe()?;
+        if self.tracking_kf != Some(kf.id) {
+            return None;
+        }
+        let state = *self.window.state(kf.id)?;
+        let frames = self
+            .tracked_frames
+            .iter()
+            .filter(|(f, _)| f.t > kf.t && f.t < frame.t)
+            .cloned()
+            .collect();
+        Some(Box::new(PreviousHost {
+            keyframe: kf.clone(),
+            image: self.tracking_kf_image.clone()?,
+            state,
+            frames,
+        }))
     }
 
     pub(super) fn observe(&mut self, frame: MapFrame) {
@@ -337,6 +369,7 @@ impl Odometry {
             self.guessed_snapshot = Some(s.clone());
         }
         self.tracking_map = Some(s.map.clone());
+        self.tracking_kf_image = Some(s.keyframe_image.clone());
         self.tracking_kf_filled = filled;
         if is_new {
             self.tracking_kf_adjusted = adjusted;

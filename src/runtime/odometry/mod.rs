@@ -41,7 +41,9 @@
 //! keyframe adjustments on the refinement thread; `keyframe_returns.rs` the returns to stored
 //! keyframes.
 
-use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, carry_correction};
+use super::keyframe_bundle::{
+    KeyframeBundleConfig, KeyframeRecord, PreviousHost, carry_correction,
+};
 use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{
     MapFrame, MapJob, MapSnapshot, MappingOptions, MappingOutput, MappingThread,
@@ -442,6 +444,11 @@ pub struct Odometry {
     takeoff: Option<TakeoffRecord>,
     /// The keyframe started in flight and the frames tracked since, until it is installed.
     kf_record: Option<KeyframeRecord>,
+    /// The last tracked frames with their states, oldest first (`[keyframe_bundle]
+    /// previous_host`: those since the tracked keyframe join a new keyframe's adjustment).
+    tracked_frames: VecDeque<(MapFrame, FrameState)>,
+    /// The image of the keyframe tracked against.
+    tracking_kf_image: Option<Arc<Image<u8>>>,
     /// The tracking keyframe's depths come from the keyframe adjustment (or will, once it is
     /// back): the mapper's refreshes of it are not installed.
     tracking_kf_adjusted: bool,
@@ -556,6 +563,8 @@ impl Odometry {
             init_started: None,
             takeoff: None,
             kf_record: None,
+            tracked_frames: VecDeque::new(),
+            tracking_kf_image: None,
             tracking_kf_adjusted: false,
             guessed: None,
             guessed_snapshot: None,
@@ -769,6 +778,10 @@ impl Odometry {
                         for h in self.history.iter_mut() {
                             h.t_world_cam = c * h.t_world_cam;
                         }
+                        for (f, x) in self.tracked_frames.iter_mut() {
+                            f.t_world_cam = c * f.t_world_cam;
+                            *x = corrected_state(x, &c);
+                        }
                     }
                     if let Some(e) = self.scale.estimate(self.imu.make_contiguous()) {
                         self.stats.imu_scale.push(ScaleSample {
@@ -830,6 +843,13 @@ impl Odometry {
                 t_world_cam: self.tracker.t_world_cam(),
                 ..frame
             };
+            if self.cfg.keyframe_bundle.previous_host {
+                self.tracked_frames
+                    .push_back((frame.clone(), *self.tracker.state()));
+                if self.tracked_frames.len() > MAX_TRACKED_FRAMES {
+                    self.tracked_frames.pop_front();
+                }
+            }
             self.history.push_front(frame);
             self.history.truncate(self.cfg.bootstrap.history_frames);
         }
@@ -1009,6 +1029,20 @@ impl Odometry {
     fn imu_only_result(&self, t: TimeNs) -> TrackResult {
         self.tracker.untracked_result(t)
     }
+}
+
+/// Frames kept for a new keyframe's adjustment with the previous one (`tracked_frames`): more
+/// than a keyframe interval (a keyframe lasts 0.3–2 s at 20 Hz).
+const MAX_TRACKED_FRAMES: usize = 80;
+
+/// State `x` moved by the world correction `c` (`T_new = C · T_old`): pose and velocity.
+fn corrected_state(x: &FrameState, c: &Isometry3<f64>) -> FrameState {
+    let p = c * pose_of(x);
+    let mut y = *x;
+    y.nav.r_world_body = p.rotation;
+    y.nav.p_world_m = p.translation.vector;
+    y.nav.v_world_m_s = c.rotation * x.nav.v_world_m_s;
+    y
 }
 
 /// At rest at the origin with attitude `r_world_body` and gyro bias `bg`.

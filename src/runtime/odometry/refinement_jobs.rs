@@ -3,6 +3,7 @@
 //! tracked meanwhile tracked again), and when one still out is given up.
 
 use super::*;
+use crate::runtime::keyframe_bundle::evenly_spaced;
 
 impl Odometry {
     /// Sends one refinement pass of the take-off whose first map `kf` (snapshot `s`) is ready to
@@ -98,11 +99,12 @@ impl Odometry {
         let Some(tracked_last) = rec.views.last().map(|v| v.1) else {
             return Err(Box::new(kf));
         };
-        let imu = imu_between(
-            self.imu.make_contiguous(),
-            rec.start.nav.t,
-            Some(tracked_last.nav.t),
-        );
+        // (From the previous keyframe when it joins the adjustment.)
+        let t0 = rec
+            .previous
+            .as_ref()
+            .map_or(rec.start.nav.t, |p| p.state.nav.t);
+        let imu = imu_between(self.imu.make_contiguous(), t0, Some(tracked_last.nav.t));
         self.refine_seq += 1;
         let job = RefineJob::Keyframe(Box::new(KeyframeJob {
             seq: self.refine_seq,
@@ -308,7 +310,11 @@ impl Odometry {
             self.tracking_kf_adjusted = true;
             self.stats.guessed_keyframe_scales.push(1.0 / factor);
         } else {
+            let moved = a.keyframe_state;
             self.install_keyframe(a.keyframe, snapshot, true, false, true);
+            if let Some(x) = moved {
+                self.keyframe_moved(id, &x);
+            }
         }
         let cov = *self.tracker.covariance();
         if catch_up.len() < MAX_CATCH_UP_FRAMES {
@@ -343,6 +349,19 @@ impl Odometry {
         self.stats
             .keyframe_bundle_depth_changes
             .push(a.median_inv_depth_change);
+    }
+
+    /// Keyframe `id`, just installed, was moved by its adjustment to state `x`: the keyframe
+    /// window holds it there, and the mapper's world is chained through its new pose (the frames
+    /// tracked against it reach the mapper relative to the pose the mapper holds it at).
+    fn keyframe_moved(&mut self, id: u32, x: &FrameState) {
+        self.window.set_state(id, x);
+        if let Some((kid, m_kf)) = self.mapper_kf_pose
+            && kid == id
+        {
+            let new_pose = pose_of(x) * self.rig.t_body_cam;
+            self.mapper_from_world = m_kf * new_pose.inverse();
+        }
     }
 
     /// A take-off refinement pass is back: the first map is started again from the refined views
@@ -448,12 +467,7 @@ impl Odometry {
         let (Some(mut rec), Some(s)) = (self.guessed.take(), self.guessed_snapshot.take()) else {
             return;
         };
-        let n = rec.views.len();
-        if n > max_views {
-            // Evenly spaced, the newest included.
-            let keep: Vec<usize> = (1..=max_views).map(|k| k * n / max_views - 1).collect();
-            rec.views = keep.into_iter().map(|i| rec.views[i].clone()).collect();
-        }
+        rec.views = evenly_spaced(&rec.views, max_views);
         let pyramid = Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
         // (Not sent — real time, thread busy: the keyframe stays as the mapper built it.)
         let _ = self.send_keyframe_job(rec, kf, pyramid, s, true);
