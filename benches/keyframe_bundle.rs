@@ -61,6 +61,7 @@ fn bench(c: &mut Criterion) {
         id: 0,
         start: x0,
         views,
+        previous: None,
     };
     let kb = KeyframeBundleConfig::default();
     let adjust = || {
