@@ -326,6 +326,15 @@ impl Odometry {
             for (t, image) in catch_up {
                 self.track(*t, image);
                 poses.push((*t, self.tracker.t_world_cam()));
+                if self.cfg.keyframe_bundle.previous_host {
+                    let frame = MapFrame {
+                        t: *t,
+                        image: image.clone(),
+                        t_world_cam: self.tracker.t_world_cam(),
+                    };
+                    self.tracked_frames
+                        .push_back((frame, *self.tracker.state()));
+                }
             }
             if self.tracker.state().is_finite() {
                 // The frames kept for the next keyframe get their new poses.
