@@ -186,3 +186,23 @@ fn marginalisation_keeps_the_information_of_a_long_window() {
     // 25 s of figure-eights from 2 mm / 1 mrad relative poses and a perfect IMU.
     assert!(rms < 0.05, "position rms {rms} m");
 }
+
+#[test]
+fn a_keyframe_moved_elsewhere_is_held_there_and_the_others_stay() {
+    let sp = flight();
+    let mut w = window(WindowConfig::default().max_keyframes);
+    let t0 = sp.start().add_ns(10_000_000_000);
+    let x0 = truth(&sp, t0);
+    w.reset(0, x0, &prior_cov());
+    let t1 = t0.add_ns(KF_PERIOD_NS);
+    let x1 = truth(&sp, t1);
+    w.push(1, x1, preintegrate(&sp, &x0, t1), Some(relative(&x0, &x1)));
+    let mut moved = x1;
+    moved.nav.p_world_m += nalgebra::Vector3::new(0.003, -0.002, 0.001);
+    moved.nav.v_world_m_s.x += 0.01;
+    w.set_state(1, &moved);
+    assert_eq!(*w.state(1).unwrap(), moved);
+    assert_eq!(*w.state(0).unwrap(), x0);
+    w.set_state(7, &moved); // not in the window: nothing happens
+    assert_eq!(w.len(), 2);
+}

@@ -1094,3 +1094,32 @@ fn static_covariance(tilt_sigma_rad: f64, accel_bias_std_m_s2: f64) -> Matrix15 
     ];
     Matrix15::from_fn(|a, b| if a == b { s[a] * s[a] } else { 0.0 })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn a_world_correction_moves_pose_and_velocity_and_keeps_the_rest() {
+        let mut x = rest_state(
+            TimeNs(5),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.2, 0.3)),
+            Vector3::new(0.001, 0.002, -0.001),
+        );
+        x.nav.p_world_m = Vector3::new(1.0, 2.0, 3.0);
+        x.nav.v_world_m_s = Vector3::new(0.5, -0.1, 0.2);
+        x.bias.accel_m_s2 = Vector3::new(0.01, 0.02, 0.03);
+        let c = Isometry3::from_parts(
+            Translation3::new(0.1, -0.05, 0.02),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.2)),
+        );
+        let y = corrected_state(&x, &c);
+        let expect = c * pose_of(&x);
+        assert!((pose_of(&y).translation.vector - expect.translation.vector).norm() < 1e-12);
+        assert!(pose_of(&y).rotation.angle_to(&expect.rotation) < 1e-12);
+        assert!((y.nav.v_world_m_s - c.rotation * x.nav.v_world_m_s).norm() < 1e-12);
+        assert_eq!(y.bias, x.bias);
+        assert_eq!(y.nav.t, x.nav.t);
+    }
+}
