@@ -398,15 +398,19 @@ impl PhotometricBundle<'_> {
         if !(p.start.is_finite() && views.iter().all(FrameState::is_finite)) {
             return None;
         }
-        let mut rest = p.inv_depth.split_off(h.rays.len());
+        // Split in [`PointIndex`] order: the gauge host's points, then each chain host's.
+        let mut start = h.rays.len();
         let chain_host_inv_depth_m_inv = self
             .chain_hosts
             .iter()
             .map(|c| {
-                let tail = rest.split_off(c.points.rays.len().min(rest.len()));
-                std::mem::replace(&mut rest, tail)
+                let end = start + c.points.rays.len();
+                let own = p.inv_depth[start..end].to_vec();
+                start = end;
+                own
             })
             .collect();
+        p.inv_depth.truncate(h.rays.len());
         Some(BundleResult {
             start: p.start,
             views,
@@ -1226,6 +1230,51 @@ mod tests {
         }
     }
 
+    /// Deterministic uniform numbers in [−1, 1) (xorshift64 from `seed`).
+    fn uniform_source(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        }
+    }
+
+    /// The true states with each position moved by up to `m` per axis.
+    fn jittered(
+        truth: &[FrameState],
+        m: f64,
+        uniform: &mut impl FnMut() -> f64,
+    ) -> Vec<FrameState> {
+        truth
+            .iter()
+            .map(|x| {
+                let mut y = *x;
+                y.nav.p_world_m += Vector3::new(uniform(), uniform(), uniform()) * m;
+                y
+            })
+            .collect()
+    }
+
+    /// The largest position error of `xs` against `truth`, m.
+    fn worst_position_error(xs: &[FrameState], truth: &[FrameState]) -> f64 {
+        xs.iter()
+            .zip(truth)
+            .map(|(x, t)| (x.nav.p_world_m - t.nav.p_world_m).norm())
+            .fold(0.0, f64::max)
+    }
+
+    /// The median relative error of inverse depths `inv` against `truth`.
+    fn median_rel_error(inv: &[f64], truth: &[f64]) -> f64 {
+        let mut rel: Vec<f64> = inv
+            .iter()
+            .zip(truth)
+            .map(|(a, b)| (a / b - 1.0).abs())
+            .collect();
+        rel.sort_by(f64::total_cmp);
+        rel[rel.len() / 2]
+    }
+
     /// The views dead-reckoned from a rest state taken as still: off by the pad's velocity, 2.2 cm
     /// after 0.5 s, consistent with the IMU.
     fn drifted(s: &Scene) -> Vec<FrameState> {
@@ -1547,12 +1596,7 @@ mod tests {
     fn recovers_the_hop_and_the_depths_from_a_drifted_start() {
         let s = scene(1.15);
         let views = drifted(&s);
-        let err = |xs: &[FrameState]| {
-            xs.iter()
-                .zip(&s.truth)
-                .map(|(x, t)| (x.nav.p_world_m - t.nav.p_world_m).norm())
-                .fold(0.0, f64::max)
-        };
+        let err = |xs: &[FrameState]| worst_position_error(xs, &s.truth);
         let e0 = err(&views);
         assert!(e0 > 0.02);
         let r = bundle(&s, &views, BundleConfig::default()).solve().unwrap();
@@ -1573,14 +1617,7 @@ mod tests {
             dv0 < 0.5 * Vector3::from(PAD_M_S).norm(),
             "start velocity off by {dv0} m/s"
         );
-        let mut rel: Vec<f64> = r
-            .inv_depth_m_inv
-            .iter()
-            .zip(&s.true_inv_depth)
-            .map(|(a, b)| (a / b - 1.0).abs())
-            .collect();
-        rel.sort_by(f64::total_cmp);
-        let median = rel[rel.len() / 2];
+        let median = median_rel_error(&r.inv_depth_m_inv, &s.true_inv_depth);
         // Measured 2.5 % (from 13 %).
         assert!(median < 0.04, "median inverse depth error {median}");
         assert!(r.photometric_rms_after_gray < r.photometric_rms_before_gray);
@@ -1594,25 +1631,11 @@ mod tests {
     fn repairs_a_distorted_keyframe_map_in_flight() {
         let mut s = scene(1.0);
         // Deterministic ±12 % errors on the inverse depths.
-        let mut seed = 0x2545_f491_4f6c_dd1d_u64;
-        let mut uniform = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut uniform = uniform_source(0x2545_f491_4f6c_dd1d_u64);
         for r in s.host.inv_depth_m_inv.iter_mut() {
             *r *= 1.0 + 0.12 * uniform();
         }
-        let views: Vec<FrameState> = s
-            .truth
-            .iter()
-            .map(|x| {
-                let mut y = *x;
-                y.nav.p_world_m += Vector3::new(uniform(), uniform(), uniform()) * 0.004;
-                y
-            })
-            .collect();
+        let views = jittered(&s.truth, 0.004, &mut uniform);
         let cfg = BundleConfig {
             start_velocity_std_m_s: 0.01,
             initial_depth_rel_std: 0.05,
@@ -1621,22 +1644,9 @@ mod tests {
         let mut b = bundle(&s, &views, cfg);
         b.start.nav.v_world_m_s = Vector3::from(PAD_M_S);
         let r = b.solve().unwrap();
-        let err = |xs: &[FrameState]| {
-            xs.iter()
-                .zip(&s.truth)
-                .map(|(x, t)| (x.nav.p_world_m - t.nav.p_world_m).norm())
-                .fold(0.0, f64::max)
-        };
+        let err = |xs: &[FrameState]| worst_position_error(xs, &s.truth);
         let (e0, e) = (err(&views), err(&r.views));
-        let median_rel = |inv: &[f64]| {
-            let mut rel: Vec<f64> = inv
-                .iter()
-                .zip(&s.true_inv_depth)
-                .map(|(a, b)| (a / b - 1.0).abs())
-                .collect();
-            rel.sort_by(f64::total_cmp);
-            rel[rel.len() / 2]
-        };
+        let median_rel = |inv: &[f64]| median_rel_error(inv, &s.true_inv_depth);
         let (d0, d) = (
             median_rel(&s.host.inv_depth_m_inv),
             median_rel(&r.inv_depth_m_inv),
@@ -1657,13 +1667,7 @@ mod tests {
     fn re_poses_a_keyframe_among_the_views_and_repairs_its_map() {
         let s = scene(1.0);
         let (mut ch, ch_truth) = chain_host(1.0);
-        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut uniform = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut uniform = uniform_source(0x9e37_79b9_7f4a_7c15_u64);
         for r in ch.points.inv_depth_m_inv.iter_mut() {
             *r *= 1.0 + 0.08 * uniform();
         }
@@ -1700,15 +1704,7 @@ mod tests {
             a < 0.2 * a0,
             "host rotation error {a} rad after, {a0} rad before"
         );
-        let median_rel = |inv: &[f64]| {
-            let mut rel: Vec<f64> = inv
-                .iter()
-                .zip(&ch_truth)
-                .map(|(a, b)| (a / b - 1.0).abs())
-                .collect();
-            rel.sort_by(f64::total_cmp);
-            rel[rel.len() / 2]
-        };
+        let median_rel = |inv: &[f64]| median_rel_error(inv, &ch_truth);
         assert_eq!(r.chain_host_inv_depth_m_inv.len(), 1);
         assert_eq!(r.inv_depth_m_inv.len(), s.host.rays.len());
         let (d0, d) = (
@@ -1729,28 +1725,14 @@ mod tests {
     fn repairs_both_maps_of_a_two_keyframe_chain() {
         let mut s = scene(1.0);
         let (mut ch, ch_truth) = chain_host(1.0);
-        let mut seed = 0x2545_f491_4f6c_dd1d_u64;
-        let mut uniform = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut uniform = uniform_source(0x2545_f491_4f6c_dd1d_u64);
         for r in s.host.inv_depth_m_inv.iter_mut() {
             *r *= 1.0 + 0.12 * uniform();
         }
         for r in ch.points.inv_depth_m_inv.iter_mut() {
             *r *= 1.0 + 0.08 * uniform();
         }
-        let views: Vec<FrameState> = s
-            .truth
-            .iter()
-            .map(|x| {
-                let mut y = *x;
-                y.nav.p_world_m += Vector3::new(uniform(), uniform(), uniform()) * 0.004;
-                y
-            })
-            .collect();
+        let views = jittered(&s.truth, 0.004, &mut uniform);
         let cfg = BundleConfig {
             start_velocity_std_m_s: 0.1,
             initial_depth_rel_std: 0.05,
@@ -1760,21 +1742,8 @@ mod tests {
         b.start.nav.v_world_m_s = Vector3::from(PAD_M_S);
         b.chain_hosts.push(ch.clone());
         let r = b.solve().unwrap();
-        let err = |xs: &[FrameState]| {
-            xs.iter()
-                .zip(&s.truth)
-                .map(|(x, t)| (x.nav.p_world_m - t.nav.p_world_m).norm())
-                .fold(0.0, f64::max)
-        };
-        let median_rel = |inv: &[f64], truth: &[f64]| {
-            let mut rel: Vec<f64> = inv
-                .iter()
-                .zip(truth)
-                .map(|(a, b)| (a / b - 1.0).abs())
-                .collect();
-            rel.sort_by(f64::total_cmp);
-            rel[rel.len() / 2]
-        };
+        let err = |xs: &[FrameState]| worst_position_error(xs, &s.truth);
+        let median_rel = median_rel_error;
         let (e0, e) = (err(&views), err(&r.views));
         let (g0, g) = (
             median_rel(&s.host.inv_depth_m_inv, &s.true_inv_depth),
