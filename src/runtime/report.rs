@@ -132,35 +132,19 @@ impl ReplayReport {
             .filter(|(_, p)| **p == Phase::Tracking)
             .map(|(r, _)| r)
             .collect();
-        let mut ms: Vec<f64> = tracked.iter().map(|r| r.time_s * 1e3).collect();
-        ms.sort_by(f64::total_cmp);
+        let ms = sorted(tracked.iter().map(|r| r.time_s * 1e3));
         let pct = |p: f64| percentile(&ms, p);
-        let mut map_ms: Vec<f64> = out.mapping.job_times_s.iter().map(|t| t * 1e3).collect();
-        map_ms.sort_by(f64::total_cmp);
-        let mut imu_scale: Vec<f64> = out.odometry.imu_scale.iter().map(|e| e.scale).collect();
-        imu_scale.sort_by(f64::total_cmp);
+        let map_ms = sorted(out.mapping.job_times_s.iter().map(|t| t * 1e3));
+        let imu_scale = sorted(out.odometry.imu_scale.iter().map(|e| e.scale));
         let imu_scale_pct = |p: f64| (!imu_scale.is_empty()).then(|| percentile(&imu_scale, p));
-        let mut window_ms: Vec<f64> = out
-            .odometry
-            .window_solve_s
-            .iter()
-            .map(|t| t * 1e3)
-            .collect();
-        window_ms.sort_by(f64::total_cmp);
-        let mut kb_ms: Vec<f64> = out
-            .odometry
-            .keyframe_bundle_s
-            .iter()
-            .map(|t| t * 1e3)
-            .collect();
-        kb_ms.sort_by(f64::total_cmp);
-        let mut kb_change: Vec<f64> = out
-            .odometry
-            .keyframe_bundle_depth_changes
-            .iter()
-            .map(|c| c * 100.0)
-            .collect();
-        kb_change.sort_by(f64::total_cmp);
+        let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
+        let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
+        let kb_change = sorted(
+            out.odometry
+                .keyframe_bundle_depth_changes
+                .iter()
+                .map(|c| c * 100.0),
+        );
         let mut phases = BTreeMap::new();
         for p in &out.phases {
             *phases.entry(p.as_str().to_string()).or_insert(0) += 1;
@@ -499,6 +483,13 @@ impl ReplayReport {
         }
         s
     }
+}
+
+/// `values` in ascending order (for [`percentile`]).
+fn sorted(values: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut v: Vec<f64> = values.collect();
+    v.sort_by(f64::total_cmp);
+    v
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
