@@ -1,4 +1,5 @@
-//! `vidslam dataset info DIR`: what an ASL/EuRoC folder holds.
+//! `vidslam dataset info DIR`: what an ASL/EuRoC folder holds; `vidslam dataset imu-check DIR`:
+//! how far its IMU agrees with its ground truth.
 
 use crate::dataset::{AslDataset, Event};
 use crate::time::TimeNs;
@@ -19,11 +20,30 @@ pub enum DatasetCommand {
         /// Dataset folder (containing `mav0/`, or `mav0/` itself).
         dir: PathBuf,
     },
+    /// How far the IMU agrees with the ground truth (needs both): the rotation and gyro bias
+    /// between the ground truth's body rate and the gyro, and the scale the IMU gives the ground
+    /// truth over windows of each horizon (p10/p50/p90; 1 for a consistent IMU) — the best any
+    /// odometry can learn about the scale from this IMU (see `src/eval/imu_consistency.rs`).
+    ImuCheck {
+        /// Dataset folder (containing `mav0/`, or `mav0/` itself).
+        dir: PathBuf,
+        /// Window lengths, s (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "4,8,16,32")]
+        horizons_s: Vec<f64>,
+        /// Ground-truth poses used per second in each window, as tracked frames would be.
+        #[arg(long, default_value_t = 20.0)]
+        frame_rate_hz: f64,
+    },
 }
 
 pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
     match args.command {
         DatasetCommand::Info { dir } => info(&dir),
+        DatasetCommand::ImuCheck {
+            dir,
+            horizons_s,
+            frame_rate_hz,
+        } => imu_check(&dir, &horizons_s, frame_rate_hz),
     }
 }
 
@@ -109,6 +129,74 @@ fn info(dir: &std::path::Path) -> anyhow::Result<()> {
             "depth0        present (16-bit PNG, {} units per m)",
             crate::dataset::DEPTH_PNG_UNITS_PER_M
         );
+    }
+    Ok(())
+}
+
+fn imu_check(dir: &std::path::Path, horizons_s: &[f64], frame_rate_hz: f64) -> anyhow::Result<()> {
+    use crate::eval::imu_consistency::{align_gyro, imu_scale_spread};
+    use crate::imu::flight_scale::FlightScalePrior;
+    use crate::runtime::scale_observer::ScaleObserverConfig;
+    let ds = AslDataset::open(dir)?;
+    let gt = ds.ground_truth()?.ok_or_else(|| {
+        anyhow::anyhow!(
+            "{}: no ground truth (state_groundtruth_estimate0/data.csv)",
+            ds.mav0().display()
+        )
+    })?;
+    let imu: Vec<_> = ds.imu_samples()?.collect::<Result<_, _>>()?;
+    println!("dataset       {}", ds.mav0().display());
+    let g = align_gyro(&gt.states, &imu).ok_or_else(|| {
+        anyhow::anyhow!(
+            "too little rotation (or overlap of IMU and ground truth) to align the gyro"
+        )
+    })?;
+    let axis = g.rotation_rad.try_normalize(1e-12).unwrap_or_default();
+    println!(
+        "gyro vs gt    rotation {:.3} deg about ({:+.3}, {:+.3}, {:+.3}) body, bias ({:+.5}, {:+.5}, {:+.5}) rad/s, residual RMS {:.4} rad/s over {} intervals",
+        g.rotation_rad.norm().to_degrees(),
+        axis.x,
+        axis.y,
+        axis.z,
+        g.gyro_bias_rad_s.x,
+        g.gyro_bias_rad_s.y,
+        g.gyro_bias_rad_s.z,
+        g.residual_rms_rad_s,
+        g.samples
+    );
+    let c = ScaleObserverConfig::default();
+    let prior = FlightScalePrior {
+        velocity_std_m_s: c.velocity_std_m_s,
+        accel_bias_std_m_s2: c.accel_bias_std_m_s2,
+        attitude_std_rad: c.attitude_std_rad,
+        position_std_m: c.position_std_m,
+    };
+    println!(
+        "{:<13} {:>8} {:>8} {:>8} {:>8}   accel bias (median, body) m/s²",
+        "scale", "windows", "p10", "p50", "p90"
+    );
+    for &h in horizons_s {
+        match imu_scale_spread(
+            &gt.states,
+            &imu,
+            g.gyro_bias_rad_s,
+            frame_rate_hz,
+            h,
+            &prior,
+        ) {
+            Some(s) => println!(
+                "{:<13} {:>8} {:>8.3} {:>8.3} {:>8.3}   ({:+.3}, {:+.3}, {:+.3})",
+                format!("{h} s"),
+                s.windows,
+                s.p10,
+                s.p50,
+                s.p90,
+                s.accel_bias_m_s2.x,
+                s.accel_bias_m_s2.y,
+                s.accel_bias_m_s2.z
+            ),
+            None => println!("{:<13} no window of this length", format!("{h} s")),
+        }
     }
     Ok(())
 }

@@ -19,6 +19,7 @@
 
 pub mod associate;
 pub mod ate;
+pub mod imu_consistency;
 pub mod plot;
 pub mod report;
 pub mod rpe;
