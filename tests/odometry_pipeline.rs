@@ -214,6 +214,50 @@ fn black_frames_lose_tracking_and_it_recovers_with_a_reset() {
     assert_eq!(last.1, 1, "one reset counted");
     let (stats, _) = odo.finish();
     assert_eq!(stats.resets, 1);
+    assert_eq!(
+        stats.resumes, 1,
+        "resumed on the keyframe lost, no new first map"
+    );
+}
+
+#[test]
+fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
+    let dir = takeoff();
+    let clear = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    let covered_opts = ReplayOptions {
+        covered_lens_s: vec![(3.5, 0.3)],
+        ..Default::default()
+    };
+    let covered = replay(&dir, &covered_opts, &mut |_, _| {}).unwrap();
+    let flags = |o: &vidslam::runtime::ReplayOutput| {
+        o.frames
+            .iter()
+            .filter(|r| r.flag == Some(vidslam::tracking::FlagReason::NoTexture))
+            .count()
+    };
+    assert_eq!(flags(&clear), 0);
+    assert!(flags(&covered) >= 3, "{}", flags(&covered));
+    assert_eq!((covered.odometry.resets, covered.odometry.resumes), (1, 1));
+    assert_eq!(covered.phases.last(), Some(&Phase::Tracking));
+    let (a, b) = (
+        eval_against_truth(&dir, &clear),
+        eval_against_truth(&dir, &covered),
+    );
+    println!(
+        "take-off ATE {:.4} m clear, {:.4} m with the lens covered for 0.3 s",
+        a.ate_rmse_m, b.ate_rmse_m
+    );
+    assert!(
+        b.ate_rmse_m < 1.5 * a.ate_rmse_m + 0.005,
+        "{} vs {}",
+        b.ate_rmse_m,
+        a.ate_rmse_m
+    );
+    // Without resuming, a new first map is built from the IMU after the loss instead.
+    let mut rebuild_opts = covered_opts.clone();
+    rebuild_opts.bootstrap.resume_max_s = 0.0;
+    let rebuilt = replay(&dir, &rebuild_opts, &mut |_, _| {}).unwrap();
+    assert_eq!((rebuilt.odometry.resets, rebuilt.odometry.resumes), (1, 0));
 }
 
 #[test]

@@ -217,6 +217,7 @@ fn run_one(
         config: a.config.clone(),
         max_seconds: None,
         no_vision: false,
+        cover_lens: Vec::new(),
         quiet: a.quiet,
     };
     let started = std::time::Instant::now();

@@ -44,9 +44,28 @@ pub struct ReplayArgs {
     /// IMU only: propagate with the IMU through the same solver, ignoring the images.
     #[arg(long)]
     pub no_vision: bool,
+    /// Cover the lens for DURATION_S from START_S after the first replayed frame (its frames
+    /// replaced by black images), to test loss and recovery; repeatable.
+    #[arg(long, value_name = "START_S:DURATION_S", value_parser = parse_covered_lens)]
+    pub cover_lens: Vec<(f64, f64)>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// `START_S:DURATION_S`, both non-negative seconds.
+fn parse_covered_lens(s: &str) -> Result<(f64, f64), String> {
+    let (a, d) = s
+        .split_once(':')
+        .ok_or_else(|| format!("expected START_S:DURATION_S, got {s:?}"))?;
+    let num = |v: &str, what: &str| {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite() && *x >= 0.0)
+            .ok_or_else(|| format!("{what} must be a non-negative number of seconds, got {v:?}"))
+    };
+    Ok((num(a, "START_S")?, num(d, "DURATION_S")?))
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -97,6 +116,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         },
         realtime: a.realtime,
         max_seconds: a.max_seconds,
+        covered_lens_s: a.cover_lens.clone(),
         ..Default::default()
     };
     if a.no_vision {

@@ -5,10 +5,12 @@
 mod png_io;
 mod pyramid;
 mod sample;
+mod texture;
 
 pub use png_io::{PngError, read_png_gray8, read_png_gray16, write_png_gray8, write_png_gray16};
 pub use pyramid::Pyramid;
 pub use sample::{bilinear, bilinear_with_gradient};
+pub use texture::textured_fraction;
 
 /// An owned image of `T` pixels, row-major with `stride >= width` elements per row.
 #[derive(Clone, Debug, PartialEq)]

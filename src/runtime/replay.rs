@@ -59,6 +59,9 @@ pub struct ReplayOptions {
     pub realtime: bool,
     /// Stop after this much data from the first tracked frame, s.
     pub max_seconds: Option<f64>,
+    /// Covered-lens intervals `(start_s, duration_s)` after the first replayed frame: their
+    /// frames are replaced by black images (a tracking loss on demand). Full odometry only.
+    pub covered_lens_s: Vec<(f64, f64)>,
     /// Initial standard deviations: position m, rotation rad, velocity m/s, gyro bias rad/s,
     /// accel bias m/s².
     pub initial_std: InitialStd,
@@ -115,6 +118,7 @@ impl Default for ReplayOptions {
             start: StartMode::Static,
             realtime: false,
             max_seconds: None,
+            covered_lens_s: Vec::new(),
             initial_std: InitialStd::default(),
         }
     }
@@ -262,7 +266,17 @@ fn replay_full(
             odo.push_imu(&imu[next_imu]);
             next_imu += 1;
         }
-        let img = rec.load()?;
+        let since_s = rec.t.secs_since(t0);
+        let covered = opts
+            .covered_lens_s
+            .iter()
+            .any(|&(a, d)| since_s >= a && since_s < a + d);
+        let img = if covered {
+            let c = &ds.camera.model;
+            crate::image::Image::<u8>::new(c.width, c.height)
+        } else {
+            rec.load()?
+        };
         if opts.realtime {
             let due = std::time::Duration::from_secs_f64(rec.t.secs_since(t0).max(0.0));
             if let Some(wait) = due.checked_sub(wall0.elapsed()) {

@@ -64,6 +64,9 @@ pub struct ReplayReport {
     pub init_time_s: Option<f64>,
     /// Re-initialisations after tracking loss.
     pub resets: u32,
+    /// Of `resets`, losses of the image (a covered lens) that resumed tracking on the keyframe
+    /// lost instead of building a new first map (`[bootstrap] resume_max_s`).
+    pub resumes: u32,
     /// Mapper views dropped by the tracking thread, its queue full (real-time mode).
     pub mapping_jobs_dropped: usize,
     /// Views skipped by the mapper to keep up with the camera (real-time mode).
@@ -215,6 +218,7 @@ impl ReplayReport {
                 _ => None,
             },
             resets: out.odometry.resets,
+            resumes: out.odometry.resumes,
             mapping_jobs_dropped: out.odometry.jobs_dropped,
             mapping_views_skipped: out.mapping.views_skipped,
             mapping_ms_mean: if map_ms.is_empty() {
@@ -373,7 +377,13 @@ impl ReplayReport {
         if let Some(s) = self.init_time_s {
             row("init after onset", format!("{s:.2} s"));
         }
-        row("resets", self.resets.to_string());
+        row(
+            "resets",
+            format!(
+                "{} ({} resumed on the keyframe lost)",
+                self.resets, self.resumes
+            ),
+        );
         if self.semidense_points > 0 {
             row(
                 "semidense",

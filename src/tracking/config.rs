@@ -47,6 +47,13 @@ pub struct TrackerConfig {
     pub min_inlier_ratio: f64,
     /// A frame is flagged if the IMU residual's squared Mahalanobis norm exceeds this (15 dof).
     pub max_imu_chi2: f64,
+    /// A frame with fewer than this fraction of its pixels on an edge (gradient at least
+    /// `min_gradient_gray_px`, at a quarter of the resolution) is not aligned but predicted by the
+    /// IMU and flagged `no_texture`: a covered lens or a blinded sensor, which the affine
+    /// brightness model would otherwise explain with a near-zero gain, most points "inliers".
+    /// Measured: 9–23 % on rendered frames, 46 % on the real EuRoC clip, 0 for a black frame
+    /// (0 = never).
+    pub min_textured_fraction: f64,
     /// New keyframe when fewer than this fraction of the keyframe's points project into the frame.
     pub keyframe_min_overlap: f64,
     /// New keyframe when the distance from the keyframe over its median depth exceeds this.
@@ -87,6 +94,7 @@ impl Default for TrackerConfig {
             affine_offset_prior_std_gray: 30.0,
             min_inlier_ratio: 0.25,
             max_imu_chi2: 1000.0,
+            min_textured_fraction: 0.01,
             keyframe_min_overlap: 0.7,
             keyframe_max_baseline_ratio: 0.12,
             keyframe_max_rotation_rad: 0.3,

@@ -28,7 +28,7 @@ use super::photometric::{
 use super::schur::BlockSystem;
 use crate::camera::CameraModel;
 use crate::geometry::adjoint;
-use crate::image::{Image, Pyramid};
+use crate::image::{Image, Pyramid, textured_fraction};
 use crate::imu::residual::block;
 use crate::imu::{
     FrameState, ImuNoise, Matrix15, Preintegration, Vector15, imu_jacobian_j, imu_residual,
@@ -37,6 +37,10 @@ use crate::imu::{
 use crate::time::TimeNs;
 use nalgebra::{Isometry3, Matrix6, SMatrix, SVector};
 use std::time::Instant;
+
+/// Pyramid level whose texture decides whether a frame can be aligned (`min_textured_fraction`):
+/// a quarter of the resolution, where sensor noise is averaged out.
+const TEXTURE_LEVEL: usize = 2;
 
 /// Why a frame's visual-inertial solution was not trusted. The frame's state is then the IMU
 /// prediction (with the IMU-only covariance), never the rejected solution.
@@ -52,6 +56,9 @@ pub enum FlagReason {
     FewInliers,
     /// The solution contradicts the IMU prediction beyond `max_imu_chi2`.
     ImuInconsistent,
+    /// The frame has too little texture to be aligned (`min_textured_fraction`: a covered lens,
+    /// a blinded or dark sensor); it was predicted by the IMU alone.
+    NoTexture,
 }
 
 impl FlagReason {
@@ -62,6 +69,7 @@ impl FlagReason {
             FlagReason::NonFinite => "non_finite",
             FlagReason::FewInliers => "few_inliers",
             FlagReason::ImuInconsistent => "imu_inconsistent",
+            FlagReason::NoTexture => "no_texture",
         }
     }
 }
@@ -267,12 +275,23 @@ impl Tracker {
             ..self.untracked_result(t)
         };
 
-        let vision = self.cfg.use_vision && self.keyframe.is_some();
+        let untextured = self.cfg.min_textured_fraction > 0.0 && {
+            let level = self
+                .frame
+                .level(TEXTURE_LEVEL.min(self.frame.num_levels() - 1));
+            f64::from(textured_fraction(level, self.cfg.min_gradient_gray_px))
+                < self.cfg.min_textured_fraction
+        };
+        let vision = self.cfg.use_vision && self.keyframe.is_some() && !untextured;
         let outcome = if vision {
             self.solve_visual_inertial(pre, &xi, &x_pred, &a_imu, &mut res)
         } else {
             if self.cfg.use_vision {
-                res.flag = Some(FlagReason::NoKeyframe);
+                res.flag = Some(if self.keyframe.is_none() {
+                    FlagReason::NoKeyframe
+                } else {
+                    FlagReason::NoTexture
+                });
             }
             None
         };
@@ -306,7 +325,7 @@ impl Tracker {
     /// The keyframe policy for the frame of `res` (the current state): a new keyframe when too
     /// little of the keyframe is in view, the frame is farther from it than
     /// `max_baseline_ratio` × its median depth or turned by more than `max_rotation_rad`, or
-    /// too few points are inliers. `false` without a keyframe.
+    /// too few points are inliers. `false` without a keyframe or for an untextured frame.
     pub fn wants_keyframe(
         &self,
         res: &TrackResult,
@@ -316,6 +335,9 @@ impl Tracker {
         let Some(kf) = &self.keyframe else {
             return false;
         };
+        if res.flag == Some(FlagReason::NoTexture) {
+            return false; // nothing to map in it
+        }
         let t_kc = kf.t_world_cam.inverse() * pose_of(&self.state) * self.t_body_cam;
         let baseline = t_kc.translation.vector.norm() / kf.median_depth_m.max(1e-3);
         res.overlap < self.cfg.keyframe_min_overlap

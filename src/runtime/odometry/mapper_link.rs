@@ -64,6 +64,7 @@ impl Odometry {
         history: Vec<MapFrame>,
         propagate: bool,
     ) {
+        self.resumed = false;
         // Chain the mapper's world through the previous keyframe's corrected pose.
         if let Some((prev, m_prev)) = self.mapper_kf_pose
             && let Some(x) = self.window.state(prev)

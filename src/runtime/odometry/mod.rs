@@ -114,6 +114,11 @@ pub struct BootstrapConfig {
     pub lost_after_frames: u32,
     /// A lost tracker restarts when the image has at least this many gradient points.
     pub min_texture_points: usize,
+    /// A loss shorter than this (a covered lens, a blinded sensor) resumes tracking against the
+    /// keyframe it lost, from the IMU-predicted pose, instead of building a new first map from
+    /// an IMU baseline of a few tenths of a second, whose scale is that of the velocity error
+    /// (0 = always build a new one). Counted as a reset either way.
+    pub resume_max_s: f64,
     /// Rebuild the tracking keyframe from a refined map at most every this many frames.
     pub refresh_every_frames: u32,
     /// Offline replays use a job's snapshot this many frames after sending it (1: the mapper
@@ -211,6 +216,7 @@ impl Default for BootstrapConfig {
             init_inv_depth_max_m_inv: 4.0,
             history_frames: 5,
             lost_after_frames: 3,
+            resume_max_s: 2.0,
             min_texture_points: 1500,
             refresh_every_frames: 2,
             offline_lag_frames: 2,
@@ -308,6 +314,8 @@ pub struct OdometryStats {
     /// Time of the first tracked frame after the onset.
     pub tracking_since: Option<TimeNs>,
     pub resets: u32,
+    /// Of `resets`, those that resumed tracking against the keyframe lost (`resume_max_s`).
+    pub resumes: u32,
     pub keyframes: usize,
     /// Times the tracker returned to a stored keyframe instead of starting a new one.
     pub keyframe_reuses: usize,
@@ -419,6 +427,11 @@ pub struct Odometry {
     reusing: bool,
     /// The mapper's keyframe left for a stored one (returned to if the stored one fails).
     left_kf: Option<StoredKeyframe>,
+    /// The keyframe tracking was lost on, when, and whether it was a stored one being reused,
+    /// for `[bootstrap] resume_max_s`.
+    resume: Option<(StoredKeyframe, TimeNs, bool)>,
+    /// Tracking resumed on the keyframe lost and no new keyframe has been started since.
+    resumed: bool,
     /// The stored keyframe tracked before the one now on probation, when the switch was from
     /// one stored keyframe to another that had passed its probation and was still tracking
     /// (`[reuse] probation_min_inlier_ratio` on the last frame): gone back to, on probation
@@ -549,6 +562,8 @@ impl Odometry {
             pending_kf: None,
             reusing: false,
             left_kf: None,
+            resume: None,
+            resumed: false,
             reuse_previous: None,
             failed_reuse: Vec::new(),
             reuse_frames: 0,
@@ -730,7 +745,10 @@ impl Odometry {
             }
             Phase::Tracking => {
                 self.last_inlier_ratio = result.inlier_ratio;
-                if result.flag == Some(FlagReason::FewInliers) {
+                if matches!(
+                    result.flag,
+                    Some(FlagReason::FewInliers | FlagReason::NoTexture)
+                ) {
                     self.consecutive_flagged += 1;
                 } else {
                     self.consecutive_flagged = 0;
@@ -757,6 +775,19 @@ impl Odometry {
                     self.return_from_stored_keyframe();
                 } else if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
                     self.phase = Phase::Lost;
+                    self.resume = self
+                        .tracker
+                        .keyframe()
+                        .cloned()
+                        .zip(self.tracking_map.clone())
+                        .filter(|_| {
+                            // Only a loss of the image itself, once: a keyframe lost by
+                            // motion, or lost again right after resuming, does not fit.
+                            result.flag == Some(FlagReason::NoTexture)
+                                && !self.resumed
+                                && self.cfg.bootstrap.resume_max_s > 0.0
+                        })
+                        .map(|(kf, map)| (StoredKeyframe { kf, map }, t, self.reusing));
                     self.lose_keyframe();
                     self.history.clear();
                     self.stats.resets += 1;
@@ -816,7 +847,25 @@ impl Odometry {
             Phase::Lost => {
                 let textured =
                     select_gradient_pixels(self.tracker.frame_pyramid(), &self.cfg.tracking).len();
-                if textured >= self.cfg.bootstrap.min_texture_points {
+                let resume = self.resume.take().filter(|(_, since, _)| {
+                    t.secs_since(*since) <= self.cfg.bootstrap.resume_max_s
+                });
+                if textured < self.cfg.bootstrap.min_texture_points {
+                    self.resume = resume;
+                } else if let Some((s, _, reusing)) = resume {
+                    // Back on the keyframe lost (the next frame is tracked against it); a stored
+                    // one on probation again, the keyframe left for it kept to fall back on.
+                    self.reusing = reusing;
+                    self.reuse_frames = 0;
+                    self.tracking_kf = Some(s.kf.id);
+                    self.tracker.set_keyframe(s.kf);
+                    self.tracking_map = Some(s.map);
+                    self.consecutive_flagged = 0;
+                    self.keyframe_jump = true;
+                    self.phase = Phase::Tracking;
+                    self.resumed = true;
+                    self.stats.resumes += 1;
+                } else {
                     self.reset_window();
                     self.start_keyframe(frame.clone(), Vec::new(), false);
                     self.phase = Phase::Initializing;
