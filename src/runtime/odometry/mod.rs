@@ -119,6 +119,9 @@ pub struct BootstrapConfig {
     /// an IMU baseline of a few tenths of a second, whose scale is that of the velocity error
     /// (0 = always build a new one). Counted as a reset either way.
     pub resume_max_s: f64,
+    /// …if at least this fraction of that keyframe's points project into the IMU-predicted view;
+    /// else on the stored keyframe that covers it (`[reuse]`), if one does.
+    pub resume_min_overlap: f64,
     /// Rebuild the tracking keyframe from a refined map at most every this many frames.
     pub refresh_every_frames: u32,
     /// Offline replays use a job's snapshot this many frames after sending it (1: the mapper
@@ -217,6 +220,7 @@ impl Default for BootstrapConfig {
             history_frames: 5,
             lost_after_frames: 3,
             resume_max_s: 2.0,
+            resume_min_overlap: 0.4,
             min_texture_points: 1500,
             refresh_every_frames: 2,
             offline_lag_frames: 2,
@@ -852,18 +856,9 @@ impl Odometry {
                 });
                 if textured < self.cfg.bootstrap.min_texture_points {
                     self.resume = resume;
-                } else if let Some((s, _, reusing)) = resume {
-                    // Back on the keyframe lost (the next frame is tracked against it); a stored
-                    // one on probation again, the keyframe left for it kept to fall back on.
-                    self.reusing = reusing;
-                    self.reuse_frames = 0;
-                    self.tracking_kf = Some(s.kf.id);
-                    self.tracker.set_keyframe(s.kf);
-                    self.tracking_map = Some(s.map);
-                    self.consecutive_flagged = 0;
-                    self.keyframe_jump = true;
-                    self.phase = Phase::Tracking;
-                    self.resumed = true;
+                } else if let Some((s, _, reusing)) = resume
+                    && self.resume_tracking(s, reusing)
+                {
                     self.stats.resumes += 1;
                 } else {
                     self.reset_window();
@@ -981,6 +976,50 @@ impl Odometry {
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
     /// state and covariance.
+    /// Tracking resumes after a loss of the image on keyframe `s` (lost while `reusing` a stored
+    /// one or not): on it if the IMU-predicted view still overlaps it, else on the stored keyframe
+    /// that covers the view (the vehicle moved on meanwhile). `false` if neither: nothing is
+    /// changed and a new first map is needed.
+    fn resume_tracking(&mut self, s: StoredKeyframe, reusing: bool) -> bool {
+        let at = self.tracker.t_world_cam();
+        let overlap = s.kf.predicted_overlap(
+            &at,
+            self.cfg.reuse.overlap_level,
+            self.cfg.tracking.border_px,
+        );
+        let fits = overlap >= self.cfg.bootstrap.resume_min_overlap;
+        let covered = || {
+            // (The candidates of `switch_to_stored_keyframe`.)
+            let (window, failed) = (&self.window, &self.failed_reuse);
+            self.cfg.reuse.enabled
+                && self
+                    .store
+                    .closest(&at, self.cfg.tracking.border_px, |id| {
+                        id == s.kf.id || window.state(id).is_some() || failed.contains(&id)
+                    })
+                    .is_some()
+        };
+        if !fits && !covered() {
+            return false;
+        }
+        // Back on the keyframe lost (the next frame is tracked against it); a stored one on
+        // probation again, the keyframe left for it kept to fall back on.
+        self.reusing = reusing;
+        self.reuse_frames = 0;
+        self.tracking_kf = Some(s.kf.id);
+        self.tracker.set_keyframe(s.kf);
+        self.tracking_map = Some(s.map);
+        self.consecutive_flagged = 0;
+        self.keyframe_jump = true;
+        self.phase = Phase::Tracking;
+        self.resumed = true;
+        if !fits {
+            // (Covered: the switch finds the stored keyframe checked above.)
+            self.switch_to_stored_keyframe();
+        }
+        true
+    }
+
     fn reset_window(&mut self) {
         let x = *self.tracker.state();
         let cov = *self.tracker.covariance();
