@@ -194,3 +194,30 @@ fn depth_name(d: DepthArg) -> &'static str {
         DepthArg::Semidense => "semidense",
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::parse_covered_lens;
+
+    #[test]
+    fn cover_lens_takes_start_and_duration_and_names_what_is_wrong() {
+        assert_eq!(parse_covered_lens("15:0.5"), Ok((15.0, 0.5)));
+        assert_eq!(parse_covered_lens(" 0 : 2 "), Ok((0.0, 2.0)));
+        assert!(
+            parse_covered_lens("15")
+                .unwrap_err()
+                .contains("START_S:DURATION_S")
+        );
+        assert!(parse_covered_lens("x:1").unwrap_err().contains("START_S"));
+        assert!(
+            parse_covered_lens("1:-2")
+                .unwrap_err()
+                .contains("DURATION_S")
+        );
+        assert!(
+            parse_covered_lens("1:nan")
+                .unwrap_err()
+                .contains("DURATION_S")
+        );
+    }
+}
