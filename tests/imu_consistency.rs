@@ -8,6 +8,7 @@ use vidslam::eval::imu_consistency::{align_gyro, imu_scale_spread};
 use vidslam::geometry::log_so3;
 use vidslam::imu::ImuSample;
 use vidslam::imu::flight_scale::FlightScalePrior;
+use vidslam::runtime::scale_observer::ScaleObserverConfig;
 use vidslam::time::TimeNs;
 
 const G_M_S2: f64 = 9.81;
@@ -80,13 +81,9 @@ fn imu(
         .collect()
 }
 
+/// The in-flight scale observer's priors, as `vidslam dataset imu-check` uses them.
 fn prior() -> FlightScalePrior {
-    FlightScalePrior {
-        velocity_std_m_s: 1.0,
-        accel_bias_std_m_s2: 0.3,
-        attitude_std_rad: 0.05,
-        position_std_m: 0.01,
-    }
+    ScaleObserverConfig::default().prior()
 }
 
 #[test]

@@ -135,7 +135,6 @@ fn info(dir: &std::path::Path) -> anyhow::Result<()> {
 
 fn imu_check(dir: &std::path::Path, horizons_s: &[f64], frame_rate_hz: f64) -> anyhow::Result<()> {
     use crate::eval::imu_consistency::{align_gyro, imu_scale_spread};
-    use crate::imu::flight_scale::FlightScalePrior;
     use crate::runtime::scale_observer::ScaleObserverConfig;
     let ds = AslDataset::open(dir)?;
     let gt = ds.ground_truth()?.ok_or_else(|| {
@@ -164,13 +163,8 @@ fn imu_check(dir: &std::path::Path, horizons_s: &[f64], frame_rate_hz: f64) -> a
         g.residual_rms_rad_s,
         g.samples
     );
-    let c = ScaleObserverConfig::default();
-    let prior = FlightScalePrior {
-        velocity_std_m_s: c.velocity_std_m_s,
-        accel_bias_std_m_s2: c.accel_bias_std_m_s2,
-        attitude_std_rad: c.attitude_std_rad,
-        position_std_m: c.position_std_m,
-    };
+    // The in-flight scale observer's alignment, on ground-truth poses.
+    let prior = ScaleObserverConfig::default().prior();
     println!(
         "{:<13} {:>8} {:>8} {:>8} {:>8}   accel bias (median, body) m/s²",
         "scale", "windows", "p10", "p50", "p90"

@@ -16,6 +16,7 @@
 //!   spread (p10–p90) is the best any odometry can learn about the scale from this IMU over that
 //!   horizon.
 
+use super::stats::{percentile, sorted};
 use crate::dataset::GroundTruthState;
 use crate::geometry::log_so3;
 use crate::imu::flight_scale::{FlightScalePrior, TrackedPose, dead_reckon, solve_flight_scale};
@@ -125,11 +126,6 @@ pub struct ScaleSpread {
     pub accel_bias_m_s2: Vector3<f64>,
 }
 
-/// Percentile `q` (0–1) of sorted `v`, nearest rank.
-fn percentile(v: &[f64], q: f64) -> f64 {
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
 /// Aligns the IMU with the ground truth over consecutive windows of `horizon_s` (starting every
 /// half horizon), the ground truth subsampled at `frame_rate_hz` like tracked frames and the IMU
 /// integrated with `gyro_bias_rad_s` (e.g. from [`align_gyro`]) and no accelerometer bias. `None`
@@ -200,20 +196,14 @@ pub fn imu_scale_spread(
     if scales.is_empty() {
         return None;
     }
-    scales.sort_by(f64::total_cmp);
-    for b in biases.iter_mut() {
-        b.sort_by(f64::total_cmp);
-    }
+    let scales = sorted(scales.into_iter());
+    let median = |b: &Vec<f64>| percentile(&sorted(b.iter().copied()), 50.0);
     Some(ScaleSpread {
         horizon_s,
         windows: scales.len(),
-        p10: percentile(&scales, 0.1),
-        p50: percentile(&scales, 0.5),
-        p90: percentile(&scales, 0.9),
-        accel_bias_m_s2: Vector3::new(
-            percentile(&biases[0], 0.5),
-            percentile(&biases[1], 0.5),
-            percentile(&biases[2], 0.5),
-        ),
+        p10: percentile(&scales, 10.0),
+        p50: percentile(&scales, 50.0),
+        p90: percentile(&scales, 90.0),
+        accel_bias_m_s2: Vector3::new(median(&biases[0]), median(&biases[1]), median(&biases[2])),
     })
 }

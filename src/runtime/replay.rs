@@ -278,7 +278,7 @@ fn replay_full(
             rec.load()?
         };
         if opts.realtime {
-            let due = std::time::Duration::from_secs_f64(rec.t.secs_since(t0).max(0.0));
+            let due = std::time::Duration::from_secs_f64(since_s.max(0.0));
             if let Some(wait) = due.checked_sub(wall0.elapsed()) {
                 std::thread::sleep(wait);
             }

@@ -5,6 +5,7 @@ use super::map_depth::{KeyframeDepthError, median};
 use super::odometry::Phase;
 use super::replay::ReplayOutput;
 use crate::dataset::{StampedPose, Trajectory};
+use crate::eval::stats::{percentile, sorted};
 use crate::eval::{EvalOptions, EvalReport, evaluate};
 use crate::tracking::pose_of;
 use serde::Serialize;
@@ -493,21 +494,6 @@ impl ReplayReport {
         }
         s
     }
-}
-
-/// `values` in ascending order (for [`percentile`]).
-fn sorted(values: impl Iterator<Item = f64>) -> Vec<f64> {
-    let mut v: Vec<f64> = values.collect();
-    v.sort_by(f64::total_cmp);
-    v
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return 0.0;
-    }
-    let i = ((p / 100.0) * (sorted.len() - 1) as f64).round() as usize;
-    sorted[i.min(sorted.len() - 1)]
 }
 
 /// Writes points as an ASCII PLY (x y z in m).

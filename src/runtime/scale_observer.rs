@@ -31,6 +31,18 @@ pub struct ScaleObserverConfig {
     pub position_std_m: f64,
 }
 
+impl ScaleObserverConfig {
+    /// The priors of the alignment.
+    pub fn prior(&self) -> FlightScalePrior {
+        FlightScalePrior {
+            velocity_std_m_s: self.velocity_std_m_s,
+            accel_bias_std_m_s2: self.accel_bias_std_m_s2,
+            attitude_std_rad: self.attitude_std_rad,
+            position_std_m: self.position_std_m,
+        }
+    }
+}
+
 impl Default for ScaleObserverConfig {
     fn default() -> Self {
         ScaleObserverConfig {
@@ -139,17 +151,7 @@ impl ScaleObserver {
             })
             .collect();
         let reckoned = dead_reckon(&poses, &intervals);
-        let c = &self.cfg;
-        solve_flight_scale(
-            &poses,
-            &reckoned,
-            &FlightScalePrior {
-                velocity_std_m_s: c.velocity_std_m_s,
-                accel_bias_std_m_s2: c.accel_bias_std_m_s2,
-                attitude_std_rad: c.attitude_std_rad,
-                position_std_m: c.position_std_m,
-            },
-        )
+        solve_flight_scale(&poses, &reckoned, &self.cfg.prior())
     }
 }
 

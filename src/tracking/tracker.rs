@@ -275,25 +275,16 @@ impl Tracker {
             ..self.untracked_result(t)
         };
 
-        let untextured = self.cfg.min_textured_fraction > 0.0 && {
-            let level = self
-                .frame
-                .level(TEXTURE_LEVEL.min(self.frame.num_levels() - 1));
-            f64::from(textured_fraction(level, self.cfg.min_gradient_gray_px))
-                < self.cfg.min_textured_fraction
-        };
-        let vision = self.cfg.use_vision && self.keyframe.is_some() && !untextured;
-        let outcome = if vision {
-            self.solve_visual_inertial(pre, &xi, &x_pred, &a_imu, &mut res)
-        } else {
-            if self.cfg.use_vision {
-                res.flag = Some(if self.keyframe.is_none() {
-                    FlagReason::NoKeyframe
-                } else {
-                    FlagReason::NoTexture
-                });
-            }
+        let outcome = if !self.cfg.use_vision {
             None
+        } else if self.keyframe.is_none() {
+            res.flag = Some(FlagReason::NoKeyframe);
+            None
+        } else if self.untextured() {
+            res.flag = Some(FlagReason::NoTexture);
+            None
+        } else {
+            self.solve_visual_inertial(pre, &xi, &x_pred, &a_imu, &mut res)
         };
         match outcome {
             Some((x, cov, lg, off)) => {
@@ -320,6 +311,16 @@ impl Tracker {
         );
         res.time_s = started.elapsed().as_secs_f64();
         res
+    }
+
+    /// The current frame has too little texture to be aligned (`min_textured_fraction`).
+    fn untextured(&self) -> bool {
+        let level = self
+            .frame
+            .level(TEXTURE_LEVEL.min(self.frame.num_levels() - 1));
+        self.cfg.min_textured_fraction > 0.0
+            && f64::from(textured_fraction(level, self.cfg.min_gradient_gray_px))
+                < self.cfg.min_textured_fraction
     }
 
     /// The keyframe policy for the frame of `res` (the current state): a new keyframe when too

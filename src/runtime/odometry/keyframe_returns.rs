@@ -21,14 +21,7 @@ impl Odometry {
         if !self.cfg.reuse.enabled || self.store.is_empty() {
             return false;
         }
-        let t_world_cam = self.tracker.t_world_cam();
-        let current = self.tracking_kf;
-        let (window, failed) = (&self.window, &self.failed_reuse);
-        let Some((id, _overlap)) =
-            self.store
-                .closest(&t_world_cam, self.cfg.tracking.border_px, |id| {
-                    Some(id) == current || window.state(id).is_some() || failed.contains(&id)
-                })
+        let Some(id) = self.stored_keyframe_covering(&self.tracker.t_world_cam(), self.tracking_kf)
         else {
             return false;
         };
@@ -75,6 +68,21 @@ impl Odometry {
         self.keyframe_jump = true;
         self.stats.keyframe_reuses += 1;
         true
+    }
+
+    /// The stored keyframe that covers the view from `t_world_cam`, other than `current`, a
+    /// keyframe of the window or one that failed since it was stored (`[reuse]`).
+    pub(super) fn stored_keyframe_covering(
+        &self,
+        t_world_cam: &Isometry3<f64>,
+        current: Option<u32>,
+    ) -> Option<u32> {
+        let (window, failed) = (&self.window, &self.failed_reuse);
+        self.store
+            .closest(t_world_cam, self.cfg.tracking.border_px, |id| {
+                Some(id) == current || window.state(id).is_some() || failed.contains(&id)
+            })
+            .map(|(id, _overlap)| id)
     }
 
     /// Keeps the tracking keyframe `kf` (with its map), which is being left, for returning to it

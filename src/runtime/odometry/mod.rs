@@ -974,8 +974,6 @@ impl Odometry {
         r
     }
 
-    /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
-    /// state and covariance.
     /// Tracking resumes after a loss of the image on keyframe `s` (lost while `reusing` a stored
     /// one or not): on it if the IMU-predicted view still overlaps it, else on the stored keyframe
     /// that covers the view (the vehicle moved on meanwhile). `false` if neither: nothing is
@@ -989,15 +987,7 @@ impl Odometry {
         );
         let fits = overlap >= self.cfg.bootstrap.resume_min_overlap;
         let covered = || {
-            // (The candidates of `switch_to_stored_keyframe`.)
-            let (window, failed) = (&self.window, &self.failed_reuse);
-            self.cfg.reuse.enabled
-                && self
-                    .store
-                    .closest(&at, self.cfg.tracking.border_px, |id| {
-                        id == s.kf.id || window.state(id).is_some() || failed.contains(&id)
-                    })
-                    .is_some()
+            self.cfg.reuse.enabled && self.stored_keyframe_covering(&at, Some(s.kf.id)).is_some()
         };
         if !fits && !covered() {
             return false;
@@ -1020,6 +1010,8 @@ impl Odometry {
         true
     }
 
+    /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
+    /// state and covariance.
     fn reset_window(&mut self) {
         let x = *self.tracker.state();
         let cov = *self.tracker.covariance();
