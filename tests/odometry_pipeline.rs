@@ -148,6 +148,13 @@ fn refinements_applied_frames_late_keep_replays_identical() {
     );
     assert_eq!(a.odometry.refinements_discarded, 0);
     assert_eq!(a.odometry.refinements_dropped, 0);
+    // Each applied adjustment records the accelerometer-bias change it handed to the tracker.
+    let jumps = &a.odometry.keyframe_bundle_accel_bias_jumps_m_s2;
+    assert_eq!(jumps.len(), a.odometry.keyframe_bundle_s.len());
+    assert!(
+        jumps.iter().all(|j| j.is_finite() && *j >= 0.0),
+        "{jumps:?}"
+    );
     let (ta, tb) = (trajectory(&a), trajectory(&b));
     assert_eq!(ta.poses.len(), tb.poses.len());
     for (p, q) in ta.poses.iter().zip(&tb.poses) {

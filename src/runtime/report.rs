@@ -90,6 +90,10 @@ pub struct ReplayReport {
     pub keyframe_bundle_ms_p50: f64,
     pub keyframe_bundle_ms_max: f64,
     pub keyframe_bundle_depth_change_median_pct: f64,
+    /// Median and largest change of the accelerometer bias an adjustment handed to the tracker,
+    /// m/s² (a diagnostic: the bias's own random walk allows millimetres per second squared).
+    pub keyframe_bundle_accel_bias_jump_p50_m_s2: f64,
+    pub keyframe_bundle_accel_bias_jump_max_m_s2: f64,
     pub refinements_dropped: usize,
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
@@ -148,6 +152,12 @@ impl ReplayReport {
                 .keyframe_bundle_depth_changes
                 .iter()
                 .map(|c| c * 100.0),
+        );
+        let kb_bias = sorted(
+            out.odometry
+                .keyframe_bundle_accel_bias_jumps_m_s2
+                .iter()
+                .copied(),
         );
         let mut phases = BTreeMap::new();
         for p in &out.phases {
@@ -236,6 +246,8 @@ impl ReplayReport {
             keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
             keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),
             keyframe_bundle_depth_change_median_pct: percentile(&kb_change, 50.0),
+            keyframe_bundle_accel_bias_jump_p50_m_s2: percentile(&kb_bias, 50.0),
+            keyframe_bundle_accel_bias_jump_max_m_s2: kb_bias.last().copied().unwrap_or(0.0),
             refinements_dropped: out.odometry.refinements_dropped,
             refinements_discarded: out.odometry.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.odometry.catch_up_frames,
@@ -449,12 +461,14 @@ impl ReplayReport {
             row(
                 "keyframe adjustments",
                 format!(
-                    "{}, ms p50/max {:.0} / {:.0}, depth change median {:.1} %, dropped {}, \
-                     discarded {}",
+                    "{}, ms p50/max {:.0} / {:.0}, depth change median {:.1} %, accel bias \
+                     jump p50/max {:.3} / {:.3} m/s², dropped {}, discarded {}",
                     self.keyframe_bundles,
                     self.keyframe_bundle_ms_p50,
                     self.keyframe_bundle_ms_max,
                     self.keyframe_bundle_depth_change_median_pct,
+                    self.keyframe_bundle_accel_bias_jump_p50_m_s2,
+                    self.keyframe_bundle_accel_bias_jump_max_m_s2,
                     self.refinements_dropped,
                     self.refinements_discarded
                 ),

@@ -337,6 +337,11 @@ pub struct OdometryStats {
     pub keyframe_bundle_s: Vec<f64>,
     /// Median relative inverse-depth change of each in-flight keyframe adjustment.
     pub keyframe_bundle_depth_changes: Vec<f64>,
+    /// Norm of the accelerometer-bias change each applied keyframe adjustment handed to the
+    /// tracker (its estimate from the keyframe's few tenths of a second of views minus the
+    /// tracker's), m/s². The bias should move by its random walk (~0.003 m/s² per √s on the
+    /// EuRoC IMU); jumps of tenths mean the adjustment explains a pose or depth error with it.
+    pub keyframe_bundle_accel_bias_jumps_m_s2: Vec<f64>,
     /// Take-off refinements and keyframe adjustments not started: their thread was still busy
     /// (real time).
     pub refinements_dropped: usize,

@@ -316,6 +316,9 @@ impl Odometry {
                 self.keyframe_moved(id, &x);
             }
         }
+        self.stats
+            .keyframe_bundle_accel_bias_jumps_m_s2
+            .push((a.last_view.bias.accel_m_s2 - self.tracker.state().bias.accel_m_s2).norm());
         let cov = *self.tracker.covariance();
         if catch_up.len() < MAX_CATCH_UP_FRAMES {
             let state_now = *self.tracker.state();
