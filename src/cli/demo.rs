@@ -11,6 +11,9 @@ use std::path::PathBuf;
 /// figure-eights, landing) with its IMU, then replays it through the full pipeline (rest
 /// detection, IMU bootstrap, semidense mapping thread, joint visual-inertial tracking) and prints
 /// accuracy against ground truth and timing. Exits non-zero only if the pipeline fails.
+/// `--trajectory` / `--imu` render another flight instead, e.g. S-V101 (the EuRoC V1_01 path with
+/// its real IMU): `--trajectory ../shared/data/euroc/V1_01_easy_micro/mav0/state_groundtruth_estimate0/data.csv
+/// --imu ../shared/data/euroc/V1_01_easy_micro/mav0/imu0/data.csv --seeds 1-6`.
 #[derive(Args, Debug)]
 pub struct DemoArgs {
     /// Working folder: the dataset goes to OUT/data, the replay's files to OUT/replay.
@@ -24,6 +27,14 @@ pub struct DemoArgs {
     /// the median and the worst of several seeds. Writes OUT/seeds.json.
     #[arg(long, value_name = "LIST", value_parser = parse_seed_list, conflicts_with = "seed")]
     pub seeds: Option<SeedList>,
+    /// The flight: `builtin:NAME` (available: demo) or an EuRoC ground-truth CSV / TUM trajectory
+    /// file, as `vidslam sim --trajectory`.
+    #[arg(long, default_value = "builtin:demo")]
+    pub trajectory: TrajectorySource,
+    /// Its IMU: `synth` (simulated along the flight) or a real EuRoC imu0/data.csv covering it,
+    /// as `vidslam sim --imu`.
+    #[arg(long, default_value = "synth")]
+    pub imu: ImuSource,
     /// Simulate only the first S seconds of the flight.
     #[arg(long, value_name = "S")]
     pub seconds: Option<f64>,
@@ -193,17 +204,21 @@ fn run_one(
     out: &std::path::Path,
 ) -> anyhow::Result<crate::runtime::ReplayReport> {
     let data = out.join("data");
-    println!("1/2 simulating the built-in flight into {}", data.display());
-    let mut sim = SimConfig::new(
-        data.clone(),
-        TrajectorySource::Builtin("demo".into()),
-        ImuSource::Synth,
-    );
+    let flight = match &a.trajectory {
+        TrajectorySource::Builtin(name) => format!("the built-in flight '{name}'"),
+        TrajectorySource::File(f) => format!("the flight of {}", f.display()),
+    };
+    let imu = match &a.imu {
+        ImuSource::Synth => "its simulated IMU".to_string(),
+        ImuSource::File(f) => format!("the IMU of {}", f.display()),
+    };
+    println!("1/2 simulating {flight} with {imu} into {}", data.display());
+    let mut sim = SimConfig::new(data.clone(), a.trajectory.clone(), a.imu.clone());
     sim.seed = seed;
     sim.seconds = a.seconds;
     sim.force = true;
     sim.progress = !a.quiet;
-    generate(&sim).context("simulating the demo flight")?;
+    generate(&sim).with_context(|| format!("simulating {flight} with {imu}"))?;
     println!(
         "2/2 replaying it through the odometry into {}",
         out.join("replay").display()
@@ -234,6 +249,38 @@ fn run_one(
 #[cfg(test)]
 mod tests {
     use super::parse_seed_list;
+    use crate::cli::{Cli, Command};
+    use crate::sim::{ImuSource, TrajectorySource};
+    use clap::Parser;
+
+    #[test]
+    fn demo_renders_the_built_in_flight_unless_given_another_one() {
+        let Command::Demo(d) = Cli::try_parse_from(["vidslam", "demo"]).unwrap().command else {
+            panic!("not the demo");
+        };
+        assert_eq!(d.trajectory, TrajectorySource::Builtin("demo".into()));
+        assert_eq!(d.imu, ImuSource::Synth);
+        let Command::Demo(d) = Cli::try_parse_from([
+            "vidslam",
+            "demo",
+            "--trajectory",
+            "gt/data.csv",
+            "--imu",
+            "imu0/data.csv",
+            "--seeds",
+            "1-2",
+        ])
+        .unwrap()
+        .command
+        else {
+            panic!("not the demo");
+        };
+        assert_eq!(d.trajectory, TrajectorySource::File("gt/data.csv".into()));
+        assert_eq!(d.imu, ImuSource::File("imu0/data.csv".into()));
+        assert_eq!(d.seeds.unwrap().0, vec![1, 2]);
+        let e = Cli::try_parse_from(["vidslam", "demo", "--trajectory", "builtin:"]).unwrap_err();
+        assert!(e.to_string().contains("builtin:demo"), "{e}");
+    }
 
     #[test]
     fn seed_lists_parse_and_errors_say_what_is_wrong() {

@@ -23,7 +23,8 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
-    /// Simulate the built-in flight, run the full odometry over it, print accuracy and timing.
+    /// Simulate a flight (the built-in one unless --trajectory), run the full odometry over it,
+    /// print accuracy and timing.
     Demo(demo::DemoArgs),
     /// Inspect ASL/EuRoC dataset folders.
     Dataset(dataset::DatasetArgs),
