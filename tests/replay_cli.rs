@@ -1,5 +1,6 @@
-//! `vidslam replay --depth gt` through the binary: the files it promises, the report's keys,
-//! clear errors for a bad configuration and for a dataset without depth.
+//! `vidslam replay --depth gt` through the binary: the files it promises, the report's keys (the
+//! accelerometer bias against the one the ground truth implies among them), clear errors for a
+//! bad configuration and for a dataset without depth.
 
 use std::path::Path;
 use std::process::Command;
@@ -45,7 +46,7 @@ fn replay_writes_trajectory_report_csv_and_plot() {
         "--start-s",
         "12",
         "--seconds",
-        "1.5",
+        "4.5",
         "--force",
         "--quiet",
     ]);
@@ -83,11 +84,26 @@ fn replay_writes_trajectory_report_csv_and_plot() {
             "report.json lacks {k}"
         );
     }
-    assert_eq!(rep["frames_in"], 30);
+    assert_eq!(rep["frames_in"], 90);
     assert_eq!(rep["frames_flagged"], 0);
     assert!(rep["ate_rmse_m"].as_f64().unwrap() < 0.02, "{rep}");
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
-    assert_eq!(csv.lines().count(), 31);
+    assert_eq!(csv.lines().count(), 91);
+    // The accelerometer bias: estimated, implied by the ground truth (two 2 s windows of the
+    // simulator's IMU), and close on tracking against true depth.
+    let bias = |k: &str| -> Vec<f64> {
+        rep[k]
+            .as_array()
+            .unwrap_or_else(|| panic!("report.json lacks {k}: {rep}"))
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect()
+    };
+    assert_eq!(bias("accel_bias_est_m_s2").len(), 3);
+    assert_eq!(bias("accel_bias_gt_m_s2").len(), 3);
+    let off = rep["accel_bias_error_m_s2"].as_f64().unwrap();
+    assert!(off < 0.05, "{rep}");
+    assert!(t.contains("implied by gt"), "{t}");
 
     // A config key that does not exist: the error names the file, the line and the key.
     let cfg = tmp.join("bad.toml");

@@ -33,6 +33,13 @@ pub enum DatasetCommand {
         /// Ground-truth poses used per second in each window, as tracked frames would be.
         #[arg(long, default_value_t = 20.0)]
         frame_rate_hz: f64,
+        /// Span over which the full gyro model compares rates, s (several ground-truth intervals:
+        /// one interval's rate is too noisy and shrinks the fitted scale factors).
+        #[arg(long, default_value_t = 0.05)]
+        gyro_span_s: f64,
+        /// Window over which the accelerometer bias implied by the ground truth is solved, s.
+        #[arg(long, default_value_t = 2.0)]
+        bias_window_s: f64,
     },
 }
 
@@ -43,7 +50,9 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
             dir,
             horizons_s,
             frame_rate_hz,
-        } => imu_check(&dir, &horizons_s, frame_rate_hz),
+            gyro_span_s,
+            bias_window_s,
+        } => imu_check(&dir, &horizons_s, frame_rate_hz, gyro_span_s, bias_window_s),
     }
 }
 
@@ -133,8 +142,16 @@ fn info(dir: &std::path::Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn imu_check(dir: &std::path::Path, horizons_s: &[f64], frame_rate_hz: f64) -> anyhow::Result<()> {
-    use crate::eval::imu_consistency::{align_gyro, imu_scale_spread};
+fn imu_check(
+    dir: &std::path::Path,
+    horizons_s: &[f64],
+    frame_rate_hz: f64,
+    gyro_span_s: f64,
+    bias_window_s: f64,
+) -> anyhow::Result<()> {
+    use crate::eval::imu_consistency::{
+        align_gyro, fit_gyro_model, implied_accel_bias, imu_scale_spread,
+    };
     use crate::runtime::scale_observer::ScaleObserverConfig;
     let ds = AslDataset::open(dir)?;
     let gt = ds.ground_truth()?.ok_or_else(|| {
@@ -163,6 +180,46 @@ fn imu_check(dir: &std::path::Path, horizons_s: &[f64], frame_rate_hz: f64) -> a
         g.residual_rms_rad_s,
         g.samples
     );
+    match fit_gyro_model(&gt.states, &imu, gyro_span_s) {
+        Some(m) => {
+            let (e, r, k) = (m.scale_error(), m.rotation_rad(), m.skew_rad());
+            println!(
+                "gyro model    scale error ({:+.2}, {:+.2}, {:+.2}) %, rotation ({:+.3}, {:+.3}, {:+.3}) deg, non-orthogonality xy/xz/yz ({:+.3}, {:+.3}, {:+.3}) deg, residual RMS {:.4} rad/s over {} spans of {} s",
+                100.0 * e.x,
+                100.0 * e.y,
+                100.0 * e.z,
+                r.x.to_degrees(),
+                r.y.to_degrees(),
+                r.z.to_degrees(),
+                k.x.to_degrees(),
+                k.y.to_degrees(),
+                k.z.to_degrees(),
+                m.residual_rms_rad_s,
+                m.samples,
+                m.span_s
+            );
+        }
+        None => println!(
+            "gyro model    not fitted (an axis hardly rotates, or too few spans of {gyro_span_s} s)"
+        ),
+    }
+    match implied_accel_bias(&gt.states, &imu, bias_window_s) {
+        Some(b) => println!(
+            "accel bias    implied by gt (body, {} windows of {} s): p50 ({:+.3}, {:+.3}, {:+.3}), p10 ({:+.3}, {:+.3}, {:+.3}), p90 ({:+.3}, {:+.3}, {:+.3}) m/s²",
+            b.windows,
+            b.window_s,
+            b.p50_m_s2.x,
+            b.p50_m_s2.y,
+            b.p50_m_s2.z,
+            b.p10_m_s2.x,
+            b.p10_m_s2.y,
+            b.p10_m_s2.z,
+            b.p90_m_s2.x,
+            b.p90_m_s2.y,
+            b.p90_m_s2.z
+        ),
+        None => println!("accel bias    no window of {bias_window_s} s"),
+    }
     // The in-flight scale observer's alignment, on ground-truth poses.
     let prior = ScaleObserverConfig::default().prior();
     println!(

@@ -1,6 +1,7 @@
 //! `vidslam replay`: run the odometry over a recorded ASL/EuRoC dataset and evaluate it.
 
 use crate::dataset::{AslDataset, TrajectoryFormat};
+use crate::eval::imu_consistency::implied_accel_bias;
 use crate::eval::plot_report;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
 use crate::runtime::replay::StartMode;
@@ -11,6 +12,9 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
+
+/// Windows over which report.json's `accel_bias_gt_m_s2` is solved, s.
+const IMPLIED_BIAS_WINDOW_S: f64 = 2.0;
 
 /// Runs the odometry over DIR (an ASL/EuRoC folder) and writes OUT/trajectory.tum (body pose in the
 /// gravity-aligned world, every frame), OUT/frames.csv (per-frame diagnostics), OUT/report.json (frame counts, tracking time, ATE and
@@ -160,6 +164,10 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     let ds = AslDataset::open(&a.dir)?;
     if let Some(gt) = ds.ground_truth()? {
         report.evaluate_against(&gt.trajectory(), &est);
+        let imu: Vec<_> = ds.imu_samples()?.collect::<Result<_, _>>()?;
+        if let Some(b) = implied_accel_bias(&gt.states, &imu, IMPLIED_BIAS_WINDOW_S) {
+            report.set_implied_accel_bias(b.p50_m_s2);
+        }
     }
     let depth_rows =
         keyframe_depth_errors(&ds, &out.mapping.keyframe_maps, &out.mapping.keyframe_times)?;

@@ -207,3 +207,280 @@ pub fn imu_scale_spread(
         accel_bias_m_s2: Vector3::new(median(&biases[0]), median(&biases[1]), median(&biases[2])),
     })
 }
+
+/// The gyro as a full linear sensor of the ground truth's body rate: `ω_imu ≈ M ω_gt + b`.
+///
+/// [`align_gyro`] fits a rotation only; a real gyro also has per-axis scale factors and axes
+/// that are not quite orthogonal (or a ground truth whose body frame is slightly sheared against
+/// it). `M`'s diagonal minus 1 is the scale-factor error, its antisymmetric part a rotation of the
+/// frame, its symmetric off-diagonal part the non-orthogonality of the axes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GyroModel {
+    pub m: Matrix3<f64>,
+    /// `b`, rad/s.
+    pub gyro_bias_rad_s: Vector3<f64>,
+    /// RMS of `ω_imu − (M ω_gt + b)` over the spans, rad/s.
+    pub residual_rms_rad_s: f64,
+    /// Spans used.
+    pub samples: usize,
+    /// Length of each span, s.
+    pub span_s: f64,
+}
+
+impl GyroModel {
+    /// Scale-factor error per axis (`M_ii − 1`).
+    pub fn scale_error(&self) -> Vector3<f64> {
+        self.m.diagonal() - Vector3::repeat(1.0)
+    }
+
+    /// The rotation in `M` (the vector of its antisymmetric part), rad.
+    pub fn rotation_rad(&self) -> Vector3<f64> {
+        let a = (self.m - self.m.transpose()) * 0.5;
+        Vector3::new(a[(2, 1)], a[(0, 2)], a[(1, 0)])
+    }
+
+    /// Non-orthogonality of the axis pairs xy, xz, yz (the symmetric off-diagonal part of `M`),
+    /// rad.
+    pub fn skew_rad(&self) -> Vector3<f64> {
+        let s = (self.m + self.m.transpose()) * 0.5;
+        Vector3::new(s[(0, 1)], s[(0, 2)], s[(1, 2)])
+    }
+}
+
+/// Mean of the linearly interpolated gyro over `[t0, t1]`; `None` outside the samples.
+fn mean_gyro(imu: &[ImuSample], t0: TimeNs, t1: TimeNs) -> Option<Vector3<f64>> {
+    let span_s = t1.secs_since(t0);
+    if span_s.is_nan() || span_s <= 0.0 {
+        return None;
+    }
+    let mut prev = (t0, gyro_at(imu, t0)?);
+    let mut sum = Vector3::zeros();
+    let inner = imu.partition_point(|s| s.t <= t0)..imu.partition_point(|s| s.t < t1);
+    for s in &imu[inner] {
+        sum += (prev.1 + s.gyro_rad_s) * (0.5 * s.t.secs_since(prev.0));
+        prev = (s.t, s.gyro_rad_s);
+    }
+    let end = gyro_at(imu, t1)?;
+    sum += (prev.1 + end) * (0.5 * t1.secs_since(prev.0));
+    Some(sum / span_s)
+}
+
+/// Fits [`GyroModel`] over consecutive spans of about `span_s`: the ground truth's mean body rate
+/// over each span (`log(R_0ᵀ R_1) / Δt`) against the gyro averaged over the same span. Spans of
+/// several ground-truth intervals matter: a rate differenced over one interval carries the
+/// ground truth's orientation noise divided by 5 ms, and a least-squares fit against a noisy
+/// regressor shrinks `M` toward zero on the axes that rotate least (errors in variables; S-V101's
+/// pitch axis reads 4 % low at one interval, 0.5 % at 0.05 s). `None` with fewer than 20 spans or
+/// an axis that hardly rotates (its rate's standard deviation under 0.01 rad/s).
+pub fn fit_gyro_model(
+    gt: &[GroundTruthState],
+    imu: &[ImuSample],
+    span_s: f64,
+) -> Option<GyroModel> {
+    if span_s.is_nan() || span_s <= 0.0 {
+        return None;
+    }
+    let mut pairs: Vec<(Vector3<f64>, Vector3<f64>)> = Vec::new();
+    let mut i = 0;
+    while i < gt.len() {
+        let t0 = gt[i].t;
+        let j = i + gt[i..].partition_point(|s| s.t.secs_since(t0) < span_s);
+        let Some(end) = gt.get(j) else { break };
+        let dt_s = end.t.secs_since(t0);
+        // A gap in the ground truth inside the span: skip it.
+        let gap = gt[i..=j]
+            .windows(2)
+            .any(|w| w[1].t.secs_since(w[0].t) > MAX_GT_INTERVAL_S);
+        if !gap {
+            let r0 = gt[i].t_world_body.rotation.to_rotation_matrix();
+            let r1 = end.t_world_body.rotation.to_rotation_matrix();
+            let omega_gt = log_so3((r0.inverse() * r1).matrix()) / dt_s;
+            if let Some(omega_imu) = mean_gyro(imu, t0, end.t)
+                && omega_gt
+                    .iter()
+                    .chain(omega_imu.iter())
+                    .all(|v| v.is_finite())
+            {
+                pairs.push((omega_gt, omega_imu));
+            }
+        }
+        i = j;
+    }
+    if pairs.len() < 20 {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    let mean_gt = pairs.iter().map(|p| p.0).sum::<Vector3<f64>>() / n;
+    let mean_imu = pairs.iter().map(|p| p.1).sum::<Vector3<f64>>() / n;
+    // Centred normal equations: M = Σ (i − ī)(g − ḡ)ᵀ · (Σ (g − ḡ)(g − ḡ)ᵀ)⁻¹, b = ī − M ḡ.
+    let cov_gt: Matrix3<f64> = pairs
+        .iter()
+        .map(|(g, _)| (g - mean_gt) * (g - mean_gt).transpose())
+        .sum::<Matrix3<f64>>()
+        / n;
+    let cross: Matrix3<f64> = pairs
+        .iter()
+        .map(|(g, i)| (i - mean_imu) * (g - mean_gt).transpose())
+        .sum::<Matrix3<f64>>()
+        / n;
+    let min_var = cov_gt.symmetric_eigenvalues().min();
+    if min_var.is_nan() || min_var < MIN_AXIS_RATE_STD_RAD_S * MIN_AXIS_RATE_STD_RAD_S {
+        return None;
+    }
+    let m = cross * cov_gt.try_inverse()?;
+    let bias = mean_imu - m * mean_gt;
+    let sq: f64 = pairs
+        .iter()
+        .map(|(g, i)| (i - (m * g + bias)).norm_squared())
+        .sum();
+    Some(GyroModel {
+        m,
+        gyro_bias_rad_s: bias,
+        residual_rms_rad_s: (sq / n).sqrt(),
+        samples: pairs.len(),
+        span_s,
+    })
+}
+
+/// An axis whose rate varies less than this over the flight leaves `M`'s column undetermined,
+/// rad/s.
+const MIN_AXIS_RATE_STD_RAD_S: f64 = 0.01;
+
+/// The accelerometer bias the ground truth implies, window by window (body frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImpliedAccelBias {
+    pub window_s: f64,
+    /// Windows solved.
+    pub windows: usize,
+    /// Per-axis percentiles 10 / 50 / 90 over the windows, m/s².
+    pub p10_m_s2: Vector3<f64>,
+    pub p50_m_s2: Vector3<f64>,
+    pub p90_m_s2: Vector3<f64>,
+}
+
+/// Half the span over which a ground-truth velocity is differenced, s.
+const VELOCITY_HALF_SPAN_S: f64 = 0.05;
+
+/// The ground truth's orientation at `t` (spherical interpolation); `None` outside it.
+fn rotation_at(gt: &[GroundTruthState], t: TimeNs) -> Option<Matrix3<f64>> {
+    let i = gt.partition_point(|s| s.t <= t);
+    let (a, b) = (gt.get(i.checked_sub(1)?)?, gt.get(i)?);
+    let span = b.t.secs_since(a.t);
+    if span.is_nan() || span <= 0.0 || span > MAX_GT_INTERVAL_S {
+        return None;
+    }
+    let w = t.secs_since(a.t) / span;
+    let q = a.t_world_body.rotation.slerp(&b.t_world_body.rotation, w);
+    Some(*q.to_rotation_matrix().matrix())
+}
+
+/// The ground truth's velocity at state `i`, differenced over ±[`VELOCITY_HALF_SPAN_S`], m/s.
+fn velocity_at(gt: &[GroundTruthState], i: usize) -> Option<Vector3<f64>> {
+    let t = gt.get(i)?.t;
+    let lo = gt[..i].partition_point(|s| t.secs_since(s.t) > VELOCITY_HALF_SPAN_S);
+    let hi = i + gt[i..].partition_point(|s| s.t.secs_since(t) < VELOCITY_HALF_SPAN_S);
+    let (a, b) = (gt.get(lo)?, gt.get(hi)?);
+    let dt_s = b.t.secs_since(a.t);
+    if dt_s.is_nan() || dt_s <= 0.0 || dt_s > 4.0 * VELOCITY_HALF_SPAN_S || lo == i || hi == i {
+        return None;
+    }
+    Some((b.t_world_body.translation.vector - a.t_world_body.translation.vector) / dt_s)
+}
+
+/// The accelerometer linearly interpolated at `t`; `None` outside the samples.
+fn accel_at(imu: &[ImuSample], t: TimeNs) -> Option<Vector3<f64>> {
+    let i = imu.partition_point(|s| s.t <= t);
+    let (a, b) = (imu.get(i.checked_sub(1)?)?, imu.get(i)?);
+    let span = b.t.secs_since(a.t);
+    if span.is_nan() || span <= 0.0 {
+        return None;
+    }
+    let w = t.secs_since(a.t) / span;
+    Some(a.accel_m_s2 * (1.0 - w) + b.accel_m_s2 * w)
+}
+
+/// The accelerometer bias that makes the IMU agree with the ground truth over consecutive
+/// windows of `window_s`: with `f = a_imu − b` the specific force, `∫ R f dt = Δv + g T` over a
+/// window (`R` the ground truth's orientation, `Δv` its velocity change, `g` gravity up), so
+/// `(∫ R dt) b = ∫ R a_imu dt − Δv − g T`. This is the bias an odometry tracking the rendered
+/// images exactly should estimate; an estimate elsewhere means its attitude or its map is off
+/// (S-V101: the ground truth implies 0.55 m/s² on body y, the odometry settles near 0.15).
+/// `None` if no window could be solved.
+pub fn implied_accel_bias(
+    gt: &[GroundTruthState],
+    imu: &[ImuSample],
+    window_s: f64,
+) -> Option<ImpliedAccelBias> {
+    if window_s.is_nan() || window_s <= 0.0 {
+        return None;
+    }
+    let (first, last) = (imu.first()?.t, imu.last()?.t);
+    let gravity_up = Vector3::new(0.0, 0.0, crate::geometry::GRAVITY_M_S2);
+    let mut biases: [Vec<f64>; 3] = Default::default();
+    let mut i = gt.partition_point(|s| s.t.secs_since(first) < VELOCITY_HALF_SPAN_S);
+    while i < gt.len() {
+        let t0 = gt[i].t;
+        let j = i + gt[i..].partition_point(|s| s.t.secs_since(t0) < window_s);
+        let Some(end) = gt.get(j) else { break };
+        if end.t.secs_since(last) > -VELOCITY_HALF_SPAN_S {
+            break;
+        }
+        if let Some(b) = window_bias(gt, imu, i, j, gravity_up) {
+            for (k, list) in biases.iter_mut().enumerate() {
+                list.push(b[k]);
+            }
+        }
+        i = j;
+    }
+    if biases[0].is_empty() {
+        return None;
+    }
+    let sorted_axes = biases.map(|b| sorted(b.into_iter()));
+    let pick = |p: f64| {
+        Vector3::new(
+            percentile(&sorted_axes[0], p),
+            percentile(&sorted_axes[1], p),
+            percentile(&sorted_axes[2], p),
+        )
+    };
+    Some(ImpliedAccelBias {
+        window_s,
+        windows: sorted_axes[0].len(),
+        p10_m_s2: pick(10.0),
+        p50_m_s2: pick(50.0),
+        p90_m_s2: pick(90.0),
+    })
+}
+
+/// One window of [`implied_accel_bias`], between ground-truth states `i` and `j`.
+fn window_bias(
+    gt: &[GroundTruthState],
+    imu: &[ImuSample],
+    i: usize,
+    j: usize,
+    gravity_up: Vector3<f64>,
+) -> Option<Vector3<f64>> {
+    let (t0, t1) = (gt[i].t, gt[j].t);
+    let dv = velocity_at(gt, j)? - velocity_at(gt, i)?;
+    // Trapezoids between t0, every IMU sample inside, and t1.
+    let inner = imu.partition_point(|s| s.t <= t0)..imu.partition_point(|s| s.t < t1);
+    let times = std::iter::once(t0)
+        .chain(imu[inner].iter().map(|s| s.t))
+        .chain(std::iter::once(t1));
+    let mut int_r = Matrix3::zeros();
+    let mut int_ra = Vector3::zeros();
+    let mut prev: Option<(TimeNs, Matrix3<f64>, Vector3<f64>)> = None;
+    for t in times {
+        let r = rotation_at(gt, t)?;
+        let ra = r * accel_at(imu, t)?;
+        if let Some((tp, rp, rap)) = prev {
+            let h = 0.5 * t.secs_since(tp);
+            int_r += (rp + r) * h;
+            int_ra += (rap + ra) * h;
+        }
+        prev = Some((t, r, ra));
+    }
+    let rhs = int_ra - dv - gravity_up * t1.secs_since(t0);
+    let b = int_r.try_inverse()? * rhs;
+    b.iter().all(|v| v.is_finite()).then_some(b)
+}

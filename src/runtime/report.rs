@@ -125,6 +125,16 @@ pub struct ReplayReport {
     pub map_depth_worst_within_10pct: Option<f64>,
     /// Sim3 scale error and SE3 ATE of the trajectory up to every 10 s (from the first pose).
     pub scale_error_over_time: Vec<ScaleAt>,
+    /// The odometry's accelerometer bias (body), per axis the median over its tracked frames,
+    /// m/s²; `None` if no frame was tracked.
+    pub accel_bias_est_m_s2: Option<[f64; 3]>,
+    /// The bias the ground truth implies (body, per axis the median over 2 s windows, see
+    /// [`crate::eval::imu_consistency::implied_accel_bias`]), m/s²: what an odometry tracking the
+    /// images exactly would estimate; `None` without ground truth.
+    pub accel_bias_gt_m_s2: Option<[f64; 3]>,
+    /// Norm of the difference of the two, m/s² (S-V101's real IMU: ~0.4, the odometry's
+    /// attitude leaning by ~2°, see README *The accelerometer bias against the ground truth*).
+    pub accel_bias_error_m_s2: Option<f64>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -269,8 +279,27 @@ impl ReplayReport {
             map_depth_abs_median_pct: None,
             map_depth_worst_within_10pct: None,
             scale_error_over_time: Vec::new(),
+            accel_bias_est_m_s2: (!tracked.is_empty()).then(|| {
+                std::array::from_fn(|k| {
+                    percentile(
+                        &sorted(tracked.iter().map(|r| r.state.bias.accel_m_s2[k])),
+                        50.0,
+                    )
+                })
+            }),
+            accel_bias_gt_m_s2: None,
+            accel_bias_error_m_s2: None,
             eval: None,
         }
+    }
+
+    /// Sets the accelerometer bias the ground truth implies (body, m/s²) and its difference
+    /// from the estimated one.
+    pub fn set_implied_accel_bias(&mut self, gt_m_s2: nalgebra::Vector3<f64>) {
+        self.accel_bias_gt_m_s2 = Some([gt_m_s2.x, gt_m_s2.y, gt_m_s2.z]);
+        self.accel_bias_error_m_s2 = self
+            .accel_bias_est_m_s2
+            .map(|e| (nalgebra::Vector3::from(e) - gt_m_s2).norm());
     }
 
     /// Fills the `map_depth_*` keys from the keyframes' depth errors.
@@ -445,6 +474,20 @@ impl ReplayReport {
                 format!(
                     "{} estimates, tracked→metric p10/p50/p90 {:.3} / {:.3} / {:.3}",
                     self.imu_scale_estimates, p10, p50, p90
+                ),
+            );
+        }
+        if let (Some(e), Some(g), Some(d)) = (
+            self.accel_bias_est_m_s2,
+            self.accel_bias_gt_m_s2,
+            self.accel_bias_error_m_s2,
+        ) {
+            row(
+                "accel bias",
+                format!(
+                    "estimated ({:+.3}, {:+.3}, {:+.3}), implied by gt ({:+.3}, {:+.3}, {:+.3}), \
+                     off by {:.3} m/s²",
+                    e[0], e[1], e[2], g[0], g[1], g[2], d
                 ),
             );
         }
