@@ -185,7 +185,14 @@ fn demo_over_several_seeds_writes_the_distribution() {
                 .is_some_and(|a| a.is_finite() && a > 0.0),
             "{r}"
         );
+        // Null only if no window of the 3 s flight could be solved.
+        let off = &r["accel_bias_error_m_s2"];
+        assert!(
+            off.is_null() || off.as_f64().is_some_and(|b| b.is_finite() && b >= 0.0),
+            "{r}"
+        );
     }
+    assert!(t.contains("accel bias off"), "{t}");
     assert!(v["ate_rmse_m_median"].as_f64().is_some());
     assert_eq!(v["realtime"].as_bool(), Some(false));
     assert!(!t.contains("views skipped"), "{t}");

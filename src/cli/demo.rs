@@ -92,6 +92,8 @@ struct SeedRow {
     /// ATE of the first 20 s alone (aligned on its own).
     ate_rmse_first_20s_m: Option<f64>,
     scale_error_pct: Option<f64>,
+    /// The estimated accelerometer bias's distance from the one the ground truth implies, m/s².
+    accel_bias_error_m_s2: Option<f64>,
     resets: u32,
     tracking_ms_p99: f64,
     non_finite_poses: usize,
@@ -121,6 +123,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
                 .find(|s| (s.t_s - 20.0).abs() < 1e-6)
                 .map(|s| s.ate_rmse_m),
             scale_error_pct: r.eval.as_ref().map(|e| e.scale_error_pct),
+            accel_bias_error_m_s2: r.accel_bias_error_m_s2,
             resets: r.resets,
             tracking_ms_p99: r.tracking_ms_p99,
             non_finite_poses: r.non_finite_poses,
@@ -135,16 +138,17 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         ""
     };
     println!(
-        "\nseed   ATE RMSE (SE3)   ATE first 20 s   scale error   resets   tracking p99{realtime_columns}"
+        "\nseed   ATE RMSE (SE3)   ATE first 20 s   scale error   accel bias off   resets   tracking p99{realtime_columns}"
     );
     for r in &rows {
         let f = |v: Option<f64>, unit: &str| v.map_or("n/a".into(), |v| format!("{v:.3} {unit}"));
         print!(
-            "{:<6} {:>14}   {:>14}   {:>11}   {:>6}   {:>9.2} ms",
+            "{:<6} {:>14}   {:>14}   {:>11}   {:>14}   {:>6}   {:>9.2} ms",
             r.seed,
             f(r.ate_rmse_m, "m"),
             f(r.ate_rmse_first_20s_m, "m"),
             f(r.scale_error_pct, "%"),
+            f(r.accel_bias_error_m_s2, "m/s²"),
             r.resets,
             r.tracking_ms_p99
         );
