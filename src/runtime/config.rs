@@ -61,7 +61,7 @@ impl Config {
 
     /// Parses TOML text; the error says where (line, column) and which key.
     pub fn parse(text: &str) -> Result<Config, String> {
-        toml::from_str(text).map_err(|e| {
+        let c: Config = toml::from_str(text).map_err(|e| {
             let at = e
                 .span()
                 .map(|s| {
@@ -70,13 +70,63 @@ impl Config {
                 })
                 .unwrap_or_default();
             format!("{at}{}", e.message())
-        })
+        })?;
+        c.check_ranges(text)?;
+        Ok(c)
+    }
+
+    /// Values the types allow but the code cannot use. A smoothness σ of 0 would make every
+    /// inverse depth rigid (infinite information): the photometric bundle adjustment then takes
+    /// no step at all and silently leaves the keyframe or the take-off as it was.
+    fn check_ranges(&self, text: &str) -> Result<(), String> {
+        let positive = [
+            (
+                "keyframe_bundle",
+                "smoothness_rel_std",
+                self.keyframe_bundle.smoothness_rel_std,
+            ),
+            (
+                "bootstrap",
+                "takeoff_bundle_smoothness_rel_std",
+                self.bootstrap.takeoff_bundle_smoothness_rel_std,
+            ),
+        ];
+        for (table, key, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                let at = key_line(text, table, key)
+                    .map(|l| format!("line {l}: "))
+                    .unwrap_or_default();
+                return Err(format!(
+                    "{at}[{table}] {key} = {v}: must be > 0 (a relative standard deviation; \
+                     0 would hold every inverse depth rigid)"
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// The configuration as TOML (every key with its value).
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).unwrap_or_default()
     }
+}
+
+/// The 1-based line of `key` inside `[table]` in TOML `text`, if it is written there.
+fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
+    let mut in_table = false;
+    for (i, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if l.starts_with('[') {
+            in_table = l == format!("[{table}]");
+        } else if in_table
+            && l.split('=')
+                .next()
+                .is_some_and(|k| k.trim() == key && l.contains('='))
+        {
+            return Some(i + 1);
+        }
+    }
+    None
 }
 
 #[cfg(test)]
@@ -92,6 +142,19 @@ mod tests {
         assert!(e.contains("line 3") && e.contains("huber_grey"), "{e}");
         let e = Config::parse("[tracking]\nmax_imu_chi2 = \"x\"\n").unwrap_err();
         assert!(e.contains("line 2"), "{e}");
+        // In range for the type, not for the code: named with its line.
+        let e = Config::parse(
+            "[tracking]\nhuber_gray = 5.0\n\n[keyframe_bundle]\nsmoothness_rel_std = 0.0\n",
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("line 5") && e.contains("[keyframe_bundle] smoothness_rel_std"),
+            "{e}"
+        );
+        let e =
+            Config::parse("[bootstrap]\ntakeoff_bundle_smoothness_rel_std = -1.0\n").unwrap_err();
+        assert!(e.contains("line 2") && e.contains("must be > 0"), "{e}");
+        assert!(Config::parse("[keyframe_bundle]\nsmoothness_rel_std = 0.3\n").is_ok());
     }
 
     #[test]
