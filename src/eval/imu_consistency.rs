@@ -42,8 +42,13 @@ pub struct GyroAlignment {
 /// Ground-truth intervals longer than this are skipped (a gap), s.
 const MAX_GT_INTERVAL_S: f64 = 0.05;
 
-/// The gyro linearly interpolated at `t`; `None` outside the samples.
-fn gyro_at(imu: &[ImuSample], t: TimeNs) -> Option<Vector3<f64>> {
+/// One reading of the IMU (`field`: the gyro or the accelerometer) linearly interpolated at `t`;
+/// `None` outside the samples.
+fn imu_at(
+    imu: &[ImuSample],
+    t: TimeNs,
+    field: impl Fn(&ImuSample) -> Vector3<f64>,
+) -> Option<Vector3<f64>> {
     let i = imu.partition_point(|s| s.t <= t);
     let (a, b) = (imu.get(i.checked_sub(1)?)?, imu.get(i)?);
     let span = b.t.secs_since(a.t);
@@ -51,7 +56,42 @@ fn gyro_at(imu: &[ImuSample], t: TimeNs) -> Option<Vector3<f64>> {
         return None;
     }
     let w = t.secs_since(a.t) / span;
-    Some(a.gyro_rad_s * (1.0 - w) + b.gyro_rad_s * w)
+    Some(field(a) * (1.0 - w) + field(b) * w)
+}
+
+fn gyro_of(s: &ImuSample) -> Vector3<f64> {
+    s.gyro_rad_s
+}
+
+/// Means of the ground-truth rates and of the gyro rates of `pairs` (not empty).
+fn pair_means(pairs: &[(Vector3<f64>, Vector3<f64>)]) -> (Vector3<f64>, Vector3<f64>) {
+    let n = pairs.len() as f64;
+    (
+        pairs.iter().map(|p| p.0).sum::<Vector3<f64>>() / n,
+        pairs.iter().map(|p| p.1).sum::<Vector3<f64>>() / n,
+    )
+}
+
+/// RMS of `ω_imu − (M ω_gt + b)` over `pairs` (not empty), rad/s.
+fn residual_rms(
+    pairs: &[(Vector3<f64>, Vector3<f64>)],
+    m: &Matrix3<f64>,
+    bias: &Vector3<f64>,
+) -> f64 {
+    let sq: f64 = pairs
+        .iter()
+        .map(|(g, i)| (i - (m * g + bias)).norm_squared())
+        .sum();
+    (sq / pairs.len() as f64).sqrt()
+}
+
+/// Per-axis percentile `p` of three sorted lists.
+fn axis_percentile(axes: &[Vec<f64>; 3], p: f64) -> Vector3<f64> {
+    Vector3::new(
+        percentile(&axes[0], p),
+        percentile(&axes[1], p),
+        percentile(&axes[2], p),
+    )
 }
 
 /// Fits the rotation and bias between the ground truth's body rate and the gyro; `None` with
@@ -67,7 +107,7 @@ pub fn align_gyro(gt: &[GroundTruthState], imu: &[ImuSample]) -> Option<GyroAlig
         let r1 = w[1].t_world_body.rotation.to_rotation_matrix();
         let omega_gt = log_so3((r0.inverse() * r1).matrix()) / dt_s;
         let mid = w[0].t.add_ns((w[1].t.0 - w[0].t.0) / 2);
-        if let Some(omega_imu) = gyro_at(imu, mid)
+        if let Some(omega_imu) = imu_at(imu, mid, gyro_of)
             && omega_gt
                 .iter()
                 .chain(omega_imu.iter())
@@ -79,9 +119,7 @@ pub fn align_gyro(gt: &[GroundTruthState], imu: &[ImuSample]) -> Option<GyroAlig
     if pairs.len() < 10 {
         return None;
     }
-    let n = pairs.len() as f64;
-    let mean_gt = pairs.iter().map(|p| p.0).sum::<Vector3<f64>>() / n;
-    let mean_imu = pairs.iter().map(|p| p.1).sum::<Vector3<f64>>() / n;
+    let (mean_gt, mean_imu) = pair_means(&pairs);
     let h: Matrix3<f64> = pairs
         .iter()
         .map(|(g, i)| (g - mean_gt) * (i - mean_imu).transpose())
@@ -98,15 +136,11 @@ pub fn align_gyro(gt: &[GroundTruthState], imu: &[ImuSample]) -> Option<GyroAlig
     let d = (v * u.transpose()).determinant().signum();
     let r = v * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose();
     let bias = mean_imu - r * mean_gt;
-    let sq: f64 = pairs
-        .iter()
-        .map(|(g, i)| (i - (r * g + bias)).norm_squared())
-        .sum();
     Some(GyroAlignment {
         r_imu_gt: r,
         rotation_rad: log_so3(&r),
         gyro_bias_rad_s: bias,
-        residual_rms_rad_s: (sq / n).sqrt(),
+        residual_rms_rad_s: residual_rms(&pairs, &r, &bias),
         samples: pairs.len(),
     })
 }
@@ -197,14 +231,14 @@ pub fn imu_scale_spread(
         return None;
     }
     let scales = sorted(scales.into_iter());
-    let median = |b: &Vec<f64>| percentile(&sorted(b.iter().copied()), 50.0);
+    let biases = biases.map(|b| sorted(b.into_iter()));
     Some(ScaleSpread {
         horizon_s,
         windows: scales.len(),
         p10: percentile(&scales, 10.0),
         p50: percentile(&scales, 50.0),
         p90: percentile(&scales, 90.0),
-        accel_bias_m_s2: Vector3::new(median(&biases[0]), median(&biases[1]), median(&biases[2])),
+        accel_bias_m_s2: axis_percentile(&biases, 50.0),
     })
 }
 
@@ -253,14 +287,14 @@ fn mean_gyro(imu: &[ImuSample], t0: TimeNs, t1: TimeNs) -> Option<Vector3<f64>> 
     if span_s.is_nan() || span_s <= 0.0 {
         return None;
     }
-    let mut prev = (t0, gyro_at(imu, t0)?);
+    let mut prev = (t0, imu_at(imu, t0, gyro_of)?);
     let mut sum = Vector3::zeros();
     let inner = imu.partition_point(|s| s.t <= t0)..imu.partition_point(|s| s.t < t1);
     for s in &imu[inner] {
         sum += (prev.1 + s.gyro_rad_s) * (0.5 * s.t.secs_since(prev.0));
         prev = (s.t, s.gyro_rad_s);
     }
-    let end = gyro_at(imu, t1)?;
+    let end = imu_at(imu, t1, gyro_of)?;
     sum += (prev.1 + end) * (0.5 * t1.secs_since(prev.0));
     Some(sum / span_s)
 }
@@ -310,8 +344,7 @@ pub fn fit_gyro_model(
         return None;
     }
     let n = pairs.len() as f64;
-    let mean_gt = pairs.iter().map(|p| p.0).sum::<Vector3<f64>>() / n;
-    let mean_imu = pairs.iter().map(|p| p.1).sum::<Vector3<f64>>() / n;
+    let (mean_gt, mean_imu) = pair_means(&pairs);
     // Centred normal equations: M = Σ (i − ī)(g − ḡ)ᵀ · (Σ (g − ḡ)(g − ḡ)ᵀ)⁻¹, b = ī − M ḡ.
     let cov_gt: Matrix3<f64> = pairs
         .iter()
@@ -329,14 +362,10 @@ pub fn fit_gyro_model(
     }
     let m = cross * cov_gt.try_inverse()?;
     let bias = mean_imu - m * mean_gt;
-    let sq: f64 = pairs
-        .iter()
-        .map(|(g, i)| (i - (m * g + bias)).norm_squared())
-        .sum();
     Some(GyroModel {
         m,
         gyro_bias_rad_s: bias,
-        residual_rms_rad_s: (sq / n).sqrt(),
+        residual_rms_rad_s: residual_rms(&pairs, &m, &bias),
         samples: pairs.len(),
         span_s,
     })
@@ -387,18 +416,6 @@ fn velocity_at(gt: &[GroundTruthState], i: usize) -> Option<Vector3<f64>> {
     Some((b.t_world_body.translation.vector - a.t_world_body.translation.vector) / dt_s)
 }
 
-/// The accelerometer linearly interpolated at `t`; `None` outside the samples.
-fn accel_at(imu: &[ImuSample], t: TimeNs) -> Option<Vector3<f64>> {
-    let i = imu.partition_point(|s| s.t <= t);
-    let (a, b) = (imu.get(i.checked_sub(1)?)?, imu.get(i)?);
-    let span = b.t.secs_since(a.t);
-    if span.is_nan() || span <= 0.0 {
-        return None;
-    }
-    let w = t.secs_since(a.t) / span;
-    Some(a.accel_m_s2 * (1.0 - w) + b.accel_m_s2 * w)
-}
-
 /// The accelerometer bias that makes the IMU agree with the ground truth over consecutive
 /// windows of `window_s`: with `f = a_imu − b` the specific force, `∫ R f dt = Δv + g T` over a
 /// window (`R` the ground truth's orientation, `Δv` its velocity change, `g` gravity up), so
@@ -435,20 +452,13 @@ pub fn implied_accel_bias(
     if biases[0].is_empty() {
         return None;
     }
-    let sorted_axes = biases.map(|b| sorted(b.into_iter()));
-    let pick = |p: f64| {
-        Vector3::new(
-            percentile(&sorted_axes[0], p),
-            percentile(&sorted_axes[1], p),
-            percentile(&sorted_axes[2], p),
-        )
-    };
+    let axes = biases.map(|b| sorted(b.into_iter()));
     Some(ImpliedAccelBias {
         window_s,
-        windows: sorted_axes[0].len(),
-        p10_m_s2: pick(10.0),
-        p50_m_s2: pick(50.0),
-        p90_m_s2: pick(90.0),
+        windows: axes[0].len(),
+        p10_m_s2: axis_percentile(&axes, 10.0),
+        p50_m_s2: axis_percentile(&axes, 50.0),
+        p90_m_s2: axis_percentile(&axes, 90.0),
     })
 }
 
@@ -472,7 +482,7 @@ fn window_bias(
     let mut prev: Option<(TimeNs, Matrix3<f64>, Vector3<f64>)> = None;
     for t in times {
         let r = rotation_at(gt, t)?;
-        let ra = r * accel_at(imu, t)?;
+        let ra = r * imu_at(imu, t, |s| s.accel_m_s2)?;
         if let Some((tp, rp, rap)) = prev {
             let h = 0.5 * t.secs_since(tp);
             int_r += (rp + r) * h;
