@@ -43,6 +43,11 @@ pub struct KeyframeBundleConfig {
     pub accel_bias_std_m_s2: f64,
     /// Each inverse depth is pulled toward its image neighbours' median with this relative σ.
     pub smoothness_rel_std: f64,
+    /// Rescale the smoothness prior's targets so that the prior does not pull the map's scale
+    /// (it shortened free-depth maps 1.5–8 % per adjustment from the truth; README, *The keyframe
+    /// adjustment's smoothness prior moved the map's scale*). Off by default: in the closed loop
+    /// it made S-V101 worse (that pull had been offsetting other scale errors of the chain).
+    pub smoothness_scale_neutral: bool,
     /// Standard deviation of each inverse depth around the mapper's, relative (0 = none).
     pub depth_rel_std: f64,
     /// The IMU white noise of the tracker (`[tracking] imu_noise_scale`) is multiplied by this.
@@ -86,6 +91,7 @@ impl Default for KeyframeBundleConfig {
             velocity_std_m_s: 0.01,
             accel_bias_std_m_s2: 0.05,
             smoothness_rel_std: 0.1,
+            smoothness_scale_neutral: false,
             depth_rel_std: 0.05,
             imu_noise_factor: 0.1,
             lag_frames: 0,
@@ -294,6 +300,7 @@ pub fn bundle_adjust_keyframe(
             },
             accel_bias_std_m_s2: cfg.accel_bias_std_m_s2,
             smoothness_rel_std: cfg.smoothness_rel_std,
+            smoothness_scale_neutral: cfg.smoothness_scale_neutral,
             initial_depth_rel_std: cfg.depth_rel_std,
             ..BundleConfig::default()
         },

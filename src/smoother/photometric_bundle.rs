@@ -139,6 +139,9 @@ pub struct BundleConfig {
     pub accel_bias_std_m_s2: f64,
     /// Standard deviation of each inverse depth around its neighbours' median, relative to it.
     pub smoothness_rel_std: f64,
+    /// Rescale each host's smoothness targets so that the prior does not pull the map's scale
+    /// (see [`PhotometricBundle::smoothness_targets`]).
+    pub smoothness_scale_neutral: bool,
     /// Standard deviation of each inverse depth around its given value, relative to it (0 = no
     /// such prior, as at take-off, where the first map's dead-reckoned scale is what is wrong).
     /// In flight the mapper's depths come from more views than the adjustment has, and a few
@@ -171,6 +174,7 @@ impl Default for BundleConfig {
             start_velocity_std_m_s: 0.01,
             accel_bias_std_m_s2: 0.05,
             smoothness_rel_std: 0.1,
+            smoothness_scale_neutral: false,
             initial_depth_rel_std: 0.0,
             smoothness_neighbours: 8,
             huber_gray: 9.0,
@@ -491,9 +495,22 @@ impl PhotometricBundle<'_> {
 
     /// The smoothness prior's target per point: the median inverse depth of its neighbours
     /// (held fixed while a linearisation is in use, as DSO's initialiser does).
+    ///
+    /// Held targets pull every point toward its neighbours' median, and what of that pull is
+    /// common to all of a host's points moves its map's scale — which the photometric terms do not
+    /// see (depths and translations scale together) and a few tenths of a second of IMU hold only
+    /// weakly. Each accepted step re-centres the targets and the pull starts again: from the true
+    /// states and depths of the rendered room the free-depth keyframe adjustment ended 1.5–8 %
+    /// short, more with more iterations (README, *The keyframe adjustment's smoothness prior
+    /// moved the map's scale*). With `smoothness_scale_neutral` each host's targets are
+    /// multiplied by the `k` that makes the prior's gradient along the host's uniform scaling
+    /// `ρ → (1 + ε) ρ` zero at the current depths, `Σ x (x / k − 1) = 0` with `x = ρ / t`:
+    /// `k = Σ x² / Σ x`. The prior's curvature is kept, so within a linearisation it still holds
+    /// the scale where it is (freeing it altogether, an extra log-scale unknown tried first, let
+    /// the accelerometer bias jump 0.6 m/s² and demo seed 1 diverge).
     fn smoothness_targets(&self, neighbours: &[Vec<u32>], inv_depth: &[f64]) -> Vec<f64> {
         let mut buf = Vec::new();
-        neighbours
+        let mut targets: Vec<f64> = neighbours
             .iter()
             .zip(inv_depth)
             .map(|(nb, &own)| {
@@ -505,7 +522,16 @@ impl PhotometricBundle<'_> {
                 buf.sort_by(f64::total_cmp);
                 buf[buf.len() / 2]
             })
-            .collect()
+            .collect();
+        if self.cfg.smoothness_scale_neutral {
+            let mut start = 0;
+            for k in 0..=self.chain_hosts.len() {
+                let end = (start + self.host_points(k).rays.len()).min(targets.len());
+                scale_neutral(&mut targets[start..end], &inv_depth[start..end]);
+                start = end;
+            }
+        }
+        targets
     }
 
     /// Information (inverse covariance) of each IMU residual's rotation/position/velocity rows,
@@ -946,6 +972,23 @@ impl PhotometricBundle<'_> {
                 },
             };
         }
+    }
+}
+
+/// Multiplies `targets` by `k = Σ x² / Σ x`, `x = ρ / t`: then the smoothness prior
+/// `Σ ((ρ − k t) / (σ k t))²` has no gradient along the uniform scaling of `inv_depth`.
+fn scale_neutral(targets: &mut [f64], inv_depth: &[f64]) {
+    let (mut s1, mut s2) = (0.0, 0.0);
+    for (t, rho) in targets.iter().zip(inv_depth) {
+        let x = rho / t;
+        if x.is_finite() {
+            s1 += x;
+            s2 += x * x;
+        }
+    }
+    let k = s2 / s1;
+    if k.is_finite() && k > 0.0 {
+        targets.iter_mut().for_each(|t| *t *= k);
     }
 }
 
@@ -1589,6 +1632,35 @@ mod tests {
         for (x, y) in one.views.iter().zip(&four.views) {
             assert_eq!(x.nav.p_world_m, y.nav.p_world_m);
             assert_eq!(x.nav.r_world_body, y.nav.r_world_body);
+        }
+    }
+
+    #[test]
+    fn scale_neutral_targets_do_not_pull_the_maps_scale() {
+        let mut uniform = uniform_source(0x1234_5678_9abc_def1_u64);
+        let inv_depth: Vec<f64> = (0..200).map(|_| 0.5 + 0.3 * uniform()).collect();
+        // Targets 3 % above the depths on average, scattered ±10 %.
+        let mut targets: Vec<f64> = inv_depth
+            .iter()
+            .map(|r| r * (1.03 + 0.1 * uniform()))
+            .collect();
+        // d/dε Σ ((ρ (1 + ε) − t) / (σ t))² at ε = 0, σ = 1.
+        let pull = |t: &[f64]| -> f64 {
+            inv_depth
+                .iter()
+                .zip(t)
+                .map(|(r, t)| 2.0 * r * (r - t) / (t * t))
+                .sum()
+        };
+        assert!(pull(&targets).abs() > 1.0, "{}", pull(&targets));
+        let before = targets.clone();
+        scale_neutral(&mut targets, &inv_depth);
+        assert!(pull(&targets).abs() < 1e-9, "{}", pull(&targets));
+        // One common factor: the shape of the targets is kept.
+        let k = targets[0] / before[0];
+        assert!((k - 1.0).abs() > 0.01);
+        for (a, b) in targets.iter().zip(&before) {
+            assert!((a / b - k).abs() < 1e-12);
         }
     }
 
