@@ -1,5 +1,6 @@
 //! `vidslam dataset info DIR`: what an ASL/EuRoC folder holds; `vidslam dataset imu-check DIR`:
-//! how far its IMU agrees with its ground truth.
+//! how far its IMU agrees with its ground truth; `vidslam dataset adjust-check DIR`: how far the
+//! keyframe adjustment started at the truth moves the map.
 
 use crate::dataset::{AslDataset, Event};
 use crate::time::TimeNs;
@@ -41,6 +42,24 @@ pub enum DatasetCommand {
         #[arg(long, default_value_t = 2.0)]
         bias_window_s: f64,
     },
+    /// The in-flight keyframe adjustment started at the truth (needs ground-truth states and
+    /// depth maps: a `vidslam sim` dataset): every N-th frame a keyframe with its points at the
+    /// rendered depth, the next frames its views at their true states, depths free. Prints how
+    /// far each adjustment moves the map's scale (median inverse depth and last baseline, adjusted
+    /// / true; 1 for an unbiased adjustment) — see `src/runtime/adjust_check.rs`.
+    AdjustCheck {
+        /// Dataset folder (containing `mav0/`, or `mav0/` itself).
+        dir: PathBuf,
+        /// Settings (TOML, as `vidslam replay --config`): the tracker's and `[keyframe_bundle]`.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Views per keyframe (the frames right after it).
+        #[arg(long, default_value_t = 4)]
+        views: usize,
+        /// A keyframe every this many frames.
+        #[arg(long, default_value_t = 10)]
+        every_frames: usize,
+    },
 }
 
 pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
@@ -53,7 +72,77 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
             gyro_span_s,
             bias_window_s,
         } => imu_check(&dir, &horizons_s, frame_rate_hz, gyro_span_s, bias_window_s),
+        DatasetCommand::AdjustCheck {
+            dir,
+            config,
+            views,
+            every_frames,
+        } => adjust_check(&dir, config.as_deref(), views, every_frames),
     }
+}
+
+fn adjust_check(
+    dir: &std::path::Path,
+    config: Option<&std::path::Path>,
+    views: usize,
+    every_frames: usize,
+) -> anyhow::Result<()> {
+    use crate::runtime::adjust_check::{AdjustCheckOptions, adjust_from_truth};
+    let ds = AslDataset::open(dir)?;
+    let cfg = match config {
+        Some(p) => crate::runtime::Config::read(p)?,
+        None => crate::runtime::Config::default(),
+    };
+    let opts = AdjustCheckOptions {
+        views,
+        every_frames,
+    };
+    let mut header = true;
+    let rows = adjust_from_truth(&ds, &cfg, &opts, |r| {
+        if std::mem::take(&mut header) {
+            println!(
+                "{:>20} {:>6} {:>11} {:>15} {:>14} {:>10} {:>9}",
+                "keyframe t [ns]",
+                "points",
+                "baseline m",
+                "inv depth ×",
+                "baseline ×",
+                "pos err m",
+                "rot err °"
+            );
+        }
+        println!(
+            "{:>20} {:>6} {:>11.3} {:>15.4} {:>14.4} {:>10.4} {:>9.3}",
+            r.t.0,
+            r.points,
+            r.baseline_m,
+            r.inv_depth_ratio,
+            r.baseline_ratio,
+            r.position_error_m,
+            r.rotation_error_rad.to_degrees()
+        );
+    })?;
+    anyhow::ensure!(!rows.is_empty(), "no keyframe could be adjusted");
+    let summary = |name: &str, mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+        println!(
+            "{name:<22} p10 {:.4}  p50 {:.4}  p90 {:.4}",
+            q(0.1),
+            q(0.5),
+            q(0.9)
+        );
+    };
+    println!("{} keyframes", rows.len());
+    summary(
+        "inverse depth ×",
+        rows.iter().map(|r| r.inv_depth_ratio).collect(),
+    );
+    summary(
+        "baseline ×",
+        rows.iter().map(|r| r.baseline_ratio).collect(),
+    );
+    Ok(())
 }
 
 fn span_line(name: &str, n: usize, first: Option<TimeNs>, last: Option<TimeNs>) {

@@ -1,5 +1,6 @@
 //! Running the pipeline: offline replay of recorded datasets, its report, and the configuration.
 
+pub mod adjust_check;
 pub mod config;
 pub mod keyframe_bundle;
 pub mod keyframe_store;
