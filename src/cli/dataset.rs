@@ -123,7 +123,12 @@ fn adjust_check(
         );
     })?;
     anyhow::ensure!(!rows.is_empty(), "no keyframe could be adjusted");
-    let summary = |name: &str, mut v: Vec<f64>| {
+    let summary = |name: &str, v: Vec<f64>| {
+        let mut v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            println!("{name:<22} -");
+            return;
+        }
         v.sort_by(f64::total_cmp);
         let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
         println!(

@@ -17,6 +17,9 @@ use crate::time::TimeNs;
 use crate::tracking::{DepthPoint, Keyframe, NUM_LEVELS, pose_of, select_gradient_pixels};
 use std::sync::Arc;
 
+/// Below this true baseline the baseline ratio is not defined, m.
+const MIN_BASELINE_M: f64 = 1e-3;
+
 /// Which keyframes and views.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AdjustCheckOptions {
@@ -46,7 +49,8 @@ pub struct AdjustCheckRow {
     pub baseline_m: f64,
     /// Median adjusted / true inverse depth (> 1: the map ends short).
     pub inv_depth_ratio: f64,
-    /// Adjusted / true distance from the keyframe to its last view.
+    /// Adjusted / true distance from the keyframe to its last view (NaN when the views are
+    /// within 1 mm of the keyframe: on the pad).
     pub baseline_ratio: f64,
     /// Largest position error of the adjusted views, m.
     pub position_error_m: f64,
@@ -182,7 +186,10 @@ pub fn adjust_from_truth(
             points: points.len(),
             baseline_m: baseline(last_true),
             inv_depth_ratio: a.median_inv_depth_ratio,
-            baseline_ratio: baseline(last) / baseline(last_true),
+            baseline_ratio: match baseline(last_true) {
+                b if b >= MIN_BASELINE_M => baseline(last) / b,
+                _ => f64::NAN,
+            },
             position_error_m: a
                 .views
                 .iter()
