@@ -124,18 +124,17 @@ fn adjust_check(
     })?;
     anyhow::ensure!(!rows.is_empty(), "no keyframe could be adjusted");
     let summary = |name: &str, v: Vec<f64>| {
-        let mut v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
+        use crate::eval::stats::{percentile, sorted};
+        let v = sorted(v.into_iter().filter(|x| x.is_finite()));
         if v.is_empty() {
             println!("{name:<22} -");
             return;
         }
-        v.sort_by(f64::total_cmp);
-        let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
         println!(
             "{name:<22} p10 {:.4}  p50 {:.4}  p90 {:.4}",
-            q(0.1),
-            q(0.5),
-            q(0.9)
+            percentile(&v, 10.0),
+            percentile(&v, 50.0),
+            percentile(&v, 90.0)
         );
     };
     println!("{} keyframes", rows.len());

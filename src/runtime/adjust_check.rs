@@ -92,16 +92,16 @@ pub fn adjust_from_truth(
     opts: &AdjustCheckOptions,
     mut on_row: impl FnMut(&AdjustCheckRow),
 ) -> Result<Vec<AdjustCheckRow>, AdjustCheckError> {
+    let missing =
+        |what: &str| AdjustCheckError::Missing(format!("{}: {what}", ds.mav0().display()));
     let gt = ds
         .ground_truth()?
-        .ok_or_else(|| AdjustCheckError::Missing("no ground truth".into()))?;
+        .ok_or_else(|| missing("no state_groundtruth_estimate0/"))?;
     if gt.states.first().is_none_or(|s| s.v_world_m_s.is_none()) {
-        return Err(AdjustCheckError::Missing(
-            "no velocity in the ground truth".into(),
-        ));
+        return Err(missing("no velocity in the ground truth"));
     }
     if !ds.mav0().join("depth0/data.csv").exists() {
-        return Err(AdjustCheckError::Missing("no depth0/".into()));
+        return Err(missing("no depth0/data.csv"));
     }
     let frames = ds.frames()?.collect::<Result<Vec<_>, _>>()?;
     let imu: Vec<ImuSample> = ds.imu_samples()?.collect::<Result<Vec<_>, _>>()?;
