@@ -53,7 +53,19 @@ fn a_free_depth_adjustment_started_at_the_truth_keeps_the_maps_scale() {
         .arg(&dir)
         .output()
         .unwrap();
+    // Without depth maps it says which file is missing.
+    std::fs::remove_file(dir.join("mav0/depth0/data.csv")).unwrap();
+    let no_depth = Command::new(env!("CARGO_BIN_EXE_vidslam"))
+        .args(["dataset", "adjust-check"])
+        .arg(&dir)
+        .output()
+        .unwrap();
     let _ = std::fs::remove_dir_all(&dir);
+    let err = String::from_utf8_lossy(&no_depth.stderr);
+    assert!(
+        !no_depth.status.success() && err.contains("no depth0/data.csv"),
+        "{err}"
+    );
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}");
     assert!(
