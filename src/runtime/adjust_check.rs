@@ -10,9 +10,10 @@
 use super::Config;
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
 use super::mapping_worker::MapFrame;
-use crate::dataset::{AslDataset, DatasetError, GroundTruth};
+use super::replay::start_state;
+use crate::dataset::{AslDataset, DatasetError};
 use crate::image::Pyramid;
-use crate::imu::{FrameState, ImuBias, ImuSample, NavState};
+use crate::imu::{FrameState, ImuSample};
 use crate::time::TimeNs;
 use crate::tracking::{DepthPoint, Keyframe, NUM_LEVELS, pose_of, select_gradient_pixels};
 use std::sync::Arc;
@@ -66,23 +67,6 @@ pub enum AdjustCheckError {
     Missing(String),
 }
 
-/// The ground-truth state at `t` (within 1 ms), with the velocity and biases.
-fn true_state(gt: &GroundTruth, t: TimeNs) -> Option<FrameState> {
-    let g = gt.nearest(t, 1_000_000)?;
-    Some(FrameState {
-        nav: NavState {
-            t,
-            r_world_body: g.t_world_body.rotation,
-            p_world_m: g.t_world_body.translation.vector,
-            v_world_m_s: g.v_world_m_s?,
-        },
-        bias: ImuBias {
-            gyro_rad_s: g.gyro_bias_rad_s.unwrap_or_default(),
-            accel_m_s2: g.accel_bias_m_s2.unwrap_or_default(),
-        },
-    })
-}
-
 /// Adjusts a keyframe every `opts.every_frames` frames of `ds` from the truth with `cfg`'s
 /// tracker and `[keyframe_bundle]` settings (depths free); `on_row` sees each result as it comes.
 /// Keyframes without a depth map, ground truth or enough views are skipped.
@@ -115,9 +99,10 @@ pub fn adjust_from_truth(
     let mut rows = Vec::new();
     for k in (0..frames.len().saturating_sub(views)).step_by(opts.every_frames.max(1)) {
         let kf_frame = &frames[k];
-        let (Some(depth), Some(start)) =
-            (ds.load_depth_m(kf_frame.t)?, true_state(&gt, kf_frame.t))
-        else {
+        let (Some(depth), Some(start)) = (
+            ds.load_depth_m(kf_frame.t)?,
+            start_state(&gt, kf_frame.t).ok(),
+        ) else {
             continue;
         };
         let pyr = Pyramid::from_u8(&kf_frame.load()?, NUM_LEVELS);
@@ -134,7 +119,7 @@ pub fn adjust_from_truth(
             .collect();
         let mut view_states = Vec::with_capacity(views);
         for f in &frames[k + 1..=k + views] {
-            let Some(x) = true_state(&gt, f.t) else {
+            let Ok(x) = start_state(&gt, f.t) else {
                 break;
             };
             let frame = MapFrame {

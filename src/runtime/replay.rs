@@ -357,8 +357,8 @@ fn replay_gt_depth(
 
 /// The rig's state at `t` from the ground truth sample within 5 ms: its pose, its velocity (else a
 /// central difference over ±25 ms) and its biases (zero if not given). The replay starts from it
-/// (`--start gt`), and the benchmarks pose their frames with it; the error speaks of the first
-/// frame, where the replay asks.
+/// (`--start gt`), the benchmarks and `dataset adjust-check` pose their frames with it; the error
+/// speaks of the first frame, where the replay asks.
 pub fn start_state(gt: &GroundTruth, t: TimeNs) -> Result<FrameState, ReplayError> {
     let s = gt
         .nearest(t, 5_000_000)
