@@ -456,6 +456,7 @@ impl SemidenseKeyframe {
             max_patch_rms: self.cfg.max_patch_rms,
             min_second_best_ratio: self.cfg.min_second_best_ratio,
             match_std_px: self.cfg.match_std_px,
+            baseline_std_m: self.cfg.baseline_std_m,
         };
         let kf_image = &self.image;
         let cfg = &self.cfg;
@@ -463,6 +464,7 @@ impl SemidenseKeyframe {
         let std_ratio = cfg.max_view_std_ratio as f64;
         let min_votes = cfg.min_consistent_views.max(1);
         let first_kappa = cfg.first_estimate_search_sigmas as f64;
+        let pose_rel = cfg.baseline_std_m as f64 / ctx.baseline_m;
         let one = |(c, t7): (&Candidate, &[f32; PATCH]), st: &mut PixelState| -> ObserveStats {
             let mut s = ObserveStats::default();
             if !st.run.lo.is_finite() && st.searches as usize >= cfg.give_up_after_searches {
@@ -479,7 +481,8 @@ impl SemidenseKeyframe {
                     .geometry
                     .line(&c.ray)
                     .normalised_speed(st.run.rho as f64)
-                && cfg.match_std_px as f64 > std_ratio * st.run.sigma as f64 * f_px * v
+                && (cfg.match_std_px as f64).hypot(st.run.rho as f64 * pose_rel * f_px * v)
+                    > std_ratio * st.run.sigma as f64 * f_px * v
             {
                 s.converged = 1;
                 return s;

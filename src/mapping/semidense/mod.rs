@@ -51,7 +51,9 @@
 //!    threshold) and it lies within the range (±2σ). Its inverse depth follows from the curve
 //!    parameter in closed form, and its standard deviation is the inverse-depth change for a shift
 //!    of `match_std_px` along the curve (DPPTAM: 1 px), divided by `|cos|` of the
-//!    gradient/epipolar angle (LSD-SLAM's geometric error).
+//!    gradient/epipolar angle (LSD-SLAM's geometric error), combined in quadrature with the
+//!    view's pose uncertainty `ρ · baseline_std_m / |t|` (a baseline error scales every point of
+//!    the view alike, so short-baseline views must not override wider or propagated ones).
 //!
 //! # Fusion over views
 //!
@@ -150,6 +152,13 @@ pub struct SemidenseConfig {
     pub min_second_best_ratio: f32,
     /// Position uncertainty of a match along the epipolar curve, px (DPPTAM: 1 px).
     pub match_std_px: f32,
+    /// Uncertainty of the view's position relative to the keyframe, m (the tracker's relative
+    /// pose error over short intervals). A baseline error `δ` moves the inverse depth of *every*
+    /// point triangulated from that view by `ρ δ/|t|` — a common-mode (scale) error that no
+    /// number of pixels averages away — so each view estimate's σ gets `ρ · baseline_std_m / |t|`
+    /// added in quadrature: views over a baseline of a few times this weigh little against
+    /// propagated priors and wider views. 0 = poses taken as exact (DPPTAM).
+    pub baseline_std_m: f32,
     /// Estimates agree if an inverse depth lies within `consistency_sigmas` standard deviations of
     /// each (τ; DPPTAM: spread/uncertainty < 1.9).
     pub consistency_sigmas: f32,
@@ -209,6 +218,7 @@ impl Default for SemidenseConfig {
             max_patch_rms: 12.0,
             min_second_best_ratio: 1.3,
             match_std_px: 0.5,
+            baseline_std_m: 0.0,
             consistency_sigmas: 2.0,
             search_sigmas: 3.0,
             first_estimate_search_sigmas: 6.0,

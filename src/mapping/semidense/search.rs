@@ -53,6 +53,8 @@ pub(crate) struct ViewContext<'a> {
     pub max_patch_rms: f32,
     pub min_second_best_ratio: f32,
     pub match_std_px: f32,
+    /// Position uncertainty of the view relative to the keyframe, m (see `SemidenseConfig`).
+    pub baseline_std_m: f32,
 }
 
 /// The keyframe side of one candidate.
@@ -577,7 +579,9 @@ pub(crate) fn search_pixel(ctx: &ViewContext, kp: &KeyframePixel, lo: f64, hi: f
     };
     let drho_ds = (r_plus - r_minus) / 2e-4;
     let ut_norm = (to_pixel(cam, &n_at(s)).1 * dn).norm();
-    let sigma = (drho_ds.abs() / ut_norm) as f32 * ctx.match_std_px / cos;
+    let sigma_match = (drho_ds.abs() / ut_norm) as f32 * ctx.match_std_px / cos;
+    let sigma_pose = (rho / ctx.baseline_m) as f32 * ctx.baseline_std_m;
+    let sigma = sigma_match.hypot(sigma_pose);
     let slack = 2.0 * sigma as f64;
     if !(rho > 0.0 && rho >= lo - slack && rho <= hi + slack && sigma.is_finite() && sigma > 0.0) {
         return Outcome::OutOfRange;
