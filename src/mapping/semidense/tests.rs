@@ -102,6 +102,20 @@ fn scene() -> Plane {
     Plane::new(Vector3::new(0.25, -0.14, 1.0), 2.5)
 }
 
+/// Median of the map's inverse depths over the true ones (NaN without points).
+fn median_inv_depth_ratio(plane: &Plane, map: &SemidenseMap) -> f64 {
+    let mut r: Vec<f64> = map
+        .points
+        .iter()
+        .map(|p| {
+            let want = plane.inv_depth(&map.camera, &map.t_world_cam, p.u_px as f64, p.v_px as f64);
+            p.inv_depth_m_inv as f64 / want
+        })
+        .collect();
+    r.sort_by(f64::total_cmp);
+    r.get(r.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
 fn relative_errors(plane: &Plane, map: &SemidenseMap) -> Vec<f64> {
     let mut e: Vec<f64> = map
         .points
@@ -399,18 +413,7 @@ fn a_keyframe_triangulated_at_the_wrong_scale_is_rescaled_and_fuses_metric_views
     };
     let mut kf = keyframe_after_six_views(&cam, &plane, &cfg, scaled);
     let before = kf.map();
-    let ratio = |m: &SemidenseMap| {
-        let mut r: Vec<f64> = m
-            .points
-            .iter()
-            .map(|p| {
-                let want = plane.inv_depth(&m.camera, &m.t_world_cam, p.u_px as f64, p.v_px as f64);
-                p.inv_depth_m_inv as f64 / want
-            })
-            .collect();
-        r.sort_by(f64::total_cmp);
-        r[r.len() / 2]
-    };
+    let ratio = |m: &SemidenseMap| median_inv_depth_ratio(&plane, m);
     assert!(before.points.len() > 2000, "{} points", before.points.len());
     assert!(
         (ratio(&before) - 1.0 / 1.3).abs() < 0.01,
@@ -488,9 +491,9 @@ fn thinned_candidates_keep_one_pixel_per_cell_and_the_depth_accuracy() {
 }
 
 /// A new keyframe of a plane 1 m away observed by three views 1.8–3 cm to the side whose
-/// tracked poses share a 25 % baseline error (a tracker 5–8 mm off), then, if `wide`, by two
-/// views 9 cm to either side at their true poses. Returns the median inverse depth of its map /
-/// the truth, and the map's number of points.
+/// tracked poses share a 25 % baseline error (a tracker 4.5–7.5 mm off), then, if `wide`, by
+/// two views 9–10 cm to either side at their true poses. Returns the median inverse depth of its
+/// map over the truth, and the map's number of points.
 fn keyframe_after_short_biased_views(cfg: &SemidenseConfig, wide: bool) -> (f64, usize) {
     let cam = camera();
     let plane = Plane::new(Vector3::new(0.25, -0.14, 1.0), 1.0);
@@ -511,16 +514,7 @@ fn keyframe_after_short_biased_views(cfg: &SemidenseConfig, wide: bool) -> (f64,
         }
     }
     let m = kf.map();
-    let mut r: Vec<f64> = m
-        .points
-        .iter()
-        .map(|p| {
-            let want = plane.inv_depth(&m.camera, &m.t_world_cam, p.u_px as f64, p.v_px as f64);
-            p.inv_depth_m_inv as f64 / want
-        })
-        .collect();
-    r.sort_by(f64::total_cmp);
-    (r.get(r.len() / 2).copied().unwrap_or(f64::NAN), r.len())
+    (median_inv_depth_ratio(&plane, &m), m.points.len())
 }
 
 #[test]
