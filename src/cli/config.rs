@@ -14,10 +14,7 @@ pub struct ConfigArgs {
 }
 
 pub fn run(a: ConfigArgs) -> anyhow::Result<()> {
-    let cfg = match &a.config {
-        Some(p) => Config::read(p)?,
-        None => Config::default(),
-    };
+    let cfg = Config::read_or_default(a.config.as_deref())?;
     print!("{}", cfg.to_toml());
     Ok(())
 }

@@ -89,10 +89,7 @@ fn adjust_check(
 ) -> anyhow::Result<()> {
     use crate::runtime::adjust_check::{AdjustCheckOptions, adjust_from_truth};
     let ds = AslDataset::open(dir)?;
-    let cfg = match config {
-        Some(p) => crate::runtime::Config::read(p)?,
-        None => crate::runtime::Config::default(),
-    };
+    let cfg = crate::runtime::Config::read_or_default(config)?;
     let opts = AdjustCheckOptions {
         views,
         every_frames,

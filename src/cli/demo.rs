@@ -103,10 +103,7 @@ struct SeedRow {
 }
 
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
-    let cfg = match &a.config {
-        Some(p) => Config::read(p)?,
-        None => Config::default(),
-    };
+    let cfg = Config::read_or_default(a.config.as_deref())?;
     let Some(SeedList(seeds)) = &a.seeds else {
         return run_one(&a, &cfg, a.seed, &a.out).map(|_| ());
     };

@@ -87,10 +87,7 @@ pub enum StartArg {
 }
 
 pub fn run(a: ReplayArgs) -> anyhow::Result<()> {
-    let cfg = match &a.config {
-        Some(p) => Config::read(p)?,
-        None => Config::default(),
-    };
+    let cfg = Config::read_or_default(a.config.as_deref())?;
     run_with(&a, &cfg).map(|_| ())
 }
 

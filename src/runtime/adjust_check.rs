@@ -166,12 +166,13 @@ pub fn adjust_from_truth(
         let (Some(last), Some(last_true)) = (last, last_true) else {
             continue;
         };
+        let baseline_m = baseline(last_true);
         let row = AdjustCheckRow {
             t: kf_frame.t,
             points: points.len(),
-            baseline_m: baseline(last_true),
+            baseline_m,
             inv_depth_ratio: a.median_inv_depth_ratio,
-            baseline_ratio: match baseline(last_true) {
+            baseline_ratio: match baseline_m {
                 b if b >= MIN_BASELINE_M => baseline(last) / b,
                 _ => f64::NAN,
             },

@@ -59,6 +59,11 @@ impl Config {
         })
     }
 
+    /// [`Config::read`] of `path`, or the defaults without one (the commands' `--config`).
+    pub fn read_or_default(path: Option<&Path>) -> Result<Config, ConfigError> {
+        path.map_or_else(|| Ok(Config::default()), Config::read)
+    }
+
     /// Parses TOML text; the error says where (line, column) and which key.
     pub fn parse(text: &str) -> Result<Config, String> {
         let c: Config = toml::from_str(text).map_err(|e| {

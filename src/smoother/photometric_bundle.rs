@@ -403,16 +403,10 @@ impl PhotometricBundle<'_> {
             return None;
         }
         // Split in [`PointIndex`] order: the gauge host's points, then each chain host's.
-        let mut start = h.rays.len();
         let chain_host_inv_depth_m_inv = self
-            .chain_hosts
-            .iter()
-            .map(|c| {
-                let end = start + c.points.rays.len();
-                let own = p.inv_depth[start..end].to_vec();
-                start = end;
-                own
-            })
+            .host_ranges()
+            .skip(1)
+            .map(|r| p.inv_depth[r].to_vec())
             .collect();
         p.inv_depth.truncate(h.rays.len());
         Some(BundleResult {
@@ -436,6 +430,17 @@ impl PhotometricBundle<'_> {
             0 => &self.host,
             _ => &self.chain_hosts[k - 1].points,
         }
+    }
+
+    /// Each host's points as a range of indices in [`PointIndex`] order (host 0 first).
+    fn host_ranges(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+        let mut start = 0;
+        (0..=self.chain_hosts.len()).map(move |k| {
+            let end = start + self.host_points(k).rays.len();
+            let r = start..end;
+            start = end;
+            r
+        })
     }
 
     /// The given inverse depths of every host's points, in [`PointIndex`] order.
@@ -524,11 +529,9 @@ impl PhotometricBundle<'_> {
             })
             .collect();
         if self.cfg.smoothness_scale_neutral {
-            let mut start = 0;
-            for k in 0..=self.chain_hosts.len() {
-                let end = (start + self.host_points(k).rays.len()).min(targets.len());
-                scale_neutral(&mut targets[start..end], &inv_depth[start..end]);
-                start = end;
+            for r in self.host_ranges() {
+                let r = r.start.min(targets.len())..r.end.min(targets.len());
+                scale_neutral(&mut targets[r.clone()], &inv_depth[r]);
             }
         }
         targets
