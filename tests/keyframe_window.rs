@@ -206,3 +206,74 @@ fn a_keyframe_moved_elsewhere_is_held_there_and_the_others_stay() {
     w.set_state(7, &moved); // not in the window: nothing happens
     assert_eq!(w.len(), 2);
 }
+
+/// `T_new = c · T_old` applied to every state.
+fn moved(x: &FrameState, c: &Isometry3<f64>) -> FrameState {
+    let mut y = *x;
+    y.nav.r_world_body = c.rotation * x.nav.r_world_body;
+    y.nav.p_world_m = c * x.nav.p_world_m;
+    y.nav.v_world_m_s = c.rotation * x.nav.v_world_m_s;
+    y
+}
+
+/// The newest state after one more keyframe on a window of 10 marginalised past its 6, solved
+/// as it is and after `transform_world(c)` (the new keyframe's guess moved by `c` too).
+fn solved_with_and_without(c: &Isometry3<f64>) -> (FrameState, FrameState) {
+    let sp = flight();
+    let mut w = window(WindowConfig::default().max_keyframes);
+    let t0 = sp.start().add_ns(10_000_000_000);
+    let x0 = truth(&sp, t0);
+    w.reset(0, x0, &prior_cov());
+    let guess = |x: &FrameState| {
+        let mut y = *x;
+        y.nav.r_world_body *= UnitQuaternion::from_scaled_axis(Vector3::new(0.01, -0.01, 0.0));
+        y.nav.v_world_m_s += Vector3::new(0.05, -0.03, 0.02);
+        y
+    };
+    let mut prev_true = x0;
+    for k in 1..=10u32 {
+        let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
+        let xt = truth(&sp, t);
+        let pre = preintegrate(&sp, w.newest().unwrap().1, t);
+        w.push(k, guess(&xt), pre, Some(relative(&prev_true, &xt)));
+        w.solve();
+        prev_true = xt;
+    }
+    let mut w2 = w.clone();
+    w2.transform_world(c);
+    let t = t0.add_ns(11 * KF_PERIOD_NS);
+    let xt = truth(&sp, t);
+    let pre = preintegrate(&sp, w.newest().unwrap().1, t);
+    w.push(11, guess(&xt), pre.clone(), Some(relative(&prev_true, &xt)));
+    w2.push(
+        11,
+        moved(&guess(&xt), c),
+        pre,
+        Some(relative(&prev_true, &xt)),
+    );
+    w.solve();
+    w2.solve();
+    (*w.newest().unwrap().1, *w2.newest().unwrap().1)
+}
+
+#[test]
+fn a_heading_and_position_change_of_the_whole_window_is_a_change_of_gauge() {
+    // Yaw and position are unobservable: the window moved by them (with its marginalisation
+    // prior) solves to the moved solution.
+    let c = Isometry3::new(Vector3::new(0.4, -1.3, 0.25), Vector3::z() * 0.5);
+    let (a, b) = solved_with_and_without(&c);
+    let a = moved(&a, &c);
+    let dp = (a.nav.p_world_m - b.nav.p_world_m).norm();
+    let dv = (a.nav.v_world_m_s - b.nav.v_world_m_s).norm();
+    let dr = a.nav.r_world_body.angle_to(&b.nav.r_world_body);
+    let db = (a.bias.accel_m_s2 - b.bias.accel_m_s2).norm();
+    assert!(
+        dp < 1e-7 && dv < 1e-7 && dr < 1e-8 && db < 1e-7,
+        "{dp} m, {dv} m/s, {dr} rad, {db} m/s²"
+    );
+    // A tilt is not a change of gauge (gravity sees it): the same comparison fails.
+    let tilt = Isometry3::new(Vector3::zeros(), Vector3::x() * 0.05);
+    let (a, b) = solved_with_and_without(&tilt);
+    let a = moved(&a, &tilt);
+    assert!((a.nav.v_world_m_s - b.nav.v_world_m_s).norm() > 1e-3);
+}

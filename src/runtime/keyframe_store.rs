@@ -58,6 +58,12 @@ pub struct ReuseConfig {
     pub redundant_baseline_ratio: f64,
     /// …and rotated less than this from it, rad.
     pub redundant_rotation_rad: f64,
+    /// The keyframe window is kept across a return instead of restarted at the first keyframe
+    /// after it: moved by the heading and position part of the switch's drift correction (a
+    /// change of gauge, [`crate::smoother::KeyframeWindow::transform_world`]), the new keyframe
+    /// joined to its newest by the IMU and by the relative pose through that correction — so
+    /// the IMU's hold on the velocity survives the return.
+    pub keep_window: bool,
 }
 
 impl Default for ReuseConfig {
@@ -75,6 +81,7 @@ impl Default for ReuseConfig {
             probation_min_inlier_ratio: 0.6,
             redundant_baseline_ratio: 0.04,
             redundant_rotation_rad: 0.1,
+            keep_window: false,
         }
     }
 }

@@ -21,7 +21,7 @@ use crate::imu::{
     FrameState, ImuNoise, Matrix15, Preintegration, Vector15, imu_residual,
     imu_residual_covariance, residual::imu_jacobian_i,
 };
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Isometry3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::ops::AddAssign;
@@ -172,6 +172,34 @@ impl KeyframeWindow {
     /// Ids and states of the keyframes in the window, oldest first.
     pub fn states(&self) -> impl Iterator<Item = (u32, &FrameState)> + '_ {
         self.nodes.iter().map(|n| (n.id, &n.state))
+    }
+
+    /// Moves the whole window by `T_new = c · T_old` (states, and the prior's linearisation
+    /// points). For a `c` that turns about the world vertical only, every factor is unchanged —
+    /// yaw and position are unobservable by the IMU and the tracked relative poses — so this is
+    /// a change of gauge: the window's solution moves with it and nothing else does. (The prior's
+    /// velocity rows turn with it: they are in the world frame, the rest in the body frame.)
+    pub fn transform_world(&mut self, c: &Isometry3<f64>) {
+        let move_state = |x: &mut FrameState| {
+            x.nav.r_world_body = c.rotation * x.nav.r_world_body;
+            x.nav.p_world_m = c * x.nav.p_world_m;
+            x.nav.v_world_m_s = c.rotation * x.nav.v_world_m_s;
+        };
+        for n in self.nodes.iter_mut() {
+            move_state(&mut n.state);
+        }
+        if let Some(p) = self.prior.as_mut() {
+            p.lin.iter_mut().for_each(move_state);
+            // δv' = R δv: H' = T H Tᵀ, g' = T g with T block-diagonal.
+            let r = c.rotation.to_rotation_matrix().into_inner();
+            let m = p.lin.len();
+            let mut t = DMatrix::<f64>::identity(15 * m, 15 * m);
+            for k in 0..m {
+                t.view_mut((15 * k + 6, 15 * k + 6), (3, 3)).copy_from(&r);
+            }
+            p.h = &t * &p.h * t.transpose();
+            p.g = &t * &p.g;
+        }
     }
 
     /// The newest keyframe's id and state.

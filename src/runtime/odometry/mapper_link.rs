@@ -73,6 +73,7 @@ impl Odometry {
             self.mapper_from_world = m_prev * p_prev.inverse();
         }
         let d = self.mapper_from_world;
+        let seed_moved = self.seed_correction.take();
         // Started while tracking a stored keyframe: its map seeds the new one (the mapper's own
         // keyframe is the one left behind).
         let seed = self
@@ -81,7 +82,10 @@ impl Odometry {
                 let id = self.tracking_kf?;
                 let s = self.store.get(id)?;
                 let mut m = (*s.map).clone();
-                m.t_world_cam = d * s.kf.t_world_cam;
+                m.t_world_cam = match seed_moved {
+                    Some(c) => d * c * s.kf.t_world_cam,
+                    None => d * s.kf.t_world_cam,
+                };
                 Some(Arc::new(m))
             })
             .flatten();
@@ -354,6 +358,7 @@ impl Odometry {
             self.pending_kf = None;
             self.reusing = false;
             self.left_kf = None;
+            self.switch_correction = None;
             self.reuse_previous = None;
             self.failed_reuse.clear();
         }

@@ -436,6 +436,16 @@ pub struct Odometry {
     reusing: bool,
     /// The mapper's keyframe left for a stored one (returned to if the stored one fails).
     left_kf: Option<StoredKeyframe>,
+    /// The world correction `C` (`T_stored = C · T_chain`) the first frame on a stored keyframe
+    /// made, switched to from the chain of new keyframes: its tracked pose against its IMU
+    /// prediction from the last frame on the chain; and that predicted position, m (`[reuse]
+    /// keep_window`).
+    switch_correction: Option<(Isometry3<f64>, Vector3<f64>)>,
+    /// The next frame measures `switch_correction`.
+    measure_switch: bool,
+    /// The keyframe window's correction of the keyframe about to be started across a return
+    /// (`[reuse] keep_window`): the stored map seeding it moves with it.
+    seed_correction: Option<Isometry3<f64>>,
     /// The keyframe tracking was lost on, when, and whether it was a stored one being reused,
     /// for `[bootstrap] resume_max_s`.
     resume: Option<(StoredKeyframe, TimeNs, bool)>,
@@ -571,6 +581,9 @@ impl Odometry {
             pending_kf: None,
             reusing: false,
             left_kf: None,
+            switch_correction: None,
+            measure_switch: false,
+            seed_correction: None,
             resume: None,
             resumed: false,
             reuse_previous: None,
@@ -971,7 +984,17 @@ impl Odometry {
         // The first frame on another keyframe jumps by the drift between the two: the IMU's
         // step stands in for it.
         let p1 = if std::mem::take(&mut self.keyframe_jump) {
-            pre.predict(&x0.nav, &x0.bias).p_world_m
+            let predicted = FrameState {
+                nav: pre.predict(&x0.nav, &x0.bias),
+                bias: x0.bias,
+            };
+            if std::mem::take(&mut self.measure_switch) && r.flag.is_none() {
+                self.switch_correction = Some((
+                    pose_of(&r.state) * pose_of(&predicted).inverse(),
+                    predicted.nav.p_world_m,
+                ));
+            }
+            predicted.nav.p_world_m
         } else {
             r.state.nav.p_world_m
         };
@@ -1024,8 +1047,9 @@ impl Odometry {
     }
 
     /// Adds the frame of `result` (about to become keyframe `next_kf_id`) to the window, joined to
-    /// the keyframe it was tracked against, solves, and moves the tracker's keyframe and state onto
-    /// the solution. Returns the world correction applied to the current frame
+    /// the keyframe it was tracked against (across a return to a stored keyframe, with `[reuse]
+    /// keep_window`, to the window's newest through the switch's drift correction), solves, and
+    /// moves the tracker's keyframe and state onto the solution. Returns the world correction applied to the current frame
     /// (`T_new = C · T_old`), `None` if the window is off or could not be used.
     fn window_keyframe(&mut self, result: &mut TrackResult) -> Option<Isometry3<f64>> {
         let id = self.next_kf_id;
@@ -1038,25 +1062,44 @@ impl Odometry {
             return None;
         };
         let buffered_from = self.imu.front().map(|s| s.t);
-        if self.tracking_kf != Some(newest) || buffered_from.is_none_or(|t0| t0 > x_prev.nav.t) {
+        let buffered = buffered_from.is_some_and(|t0| t0 <= x_prev.nav.t);
+        let mut across_return = false;
+        let visual = if self.tracking_kf == Some(newest) && buffered {
+            self.tracker
+                .keyframe()
+                .filter(|kf| kf.id == newest)
+                .map(|kf| {
+                    let t_w_bk = kf.t_world_cam * self.rig.t_body_cam.inverse();
+                    RelativePose {
+                        t_i_j: t_w_bk.inverse() * pose_of(&result.state),
+                        information: result.photometric_info,
+                    }
+                })
+        } else if let Some((c, pivot)) = self.switch_correction
+            && self.reusing
+            && self.cfg.reuse.keep_window
+            && buffered
+        {
+            across_return = true;
+            // Tracked against a stored keyframe since leaving the window's newest: the window
+            // moves onto the stored keyframe's world by the correction's heading and position
+            // (a change of gauge), and the new keyframe is joined to the newest through it.
+            self.window.transform_world(&heading_part(&c, &pivot));
+            let (_, x_newest) = self.window.newest()?;
+            Some(RelativePose {
+                t_i_j: pose_of(x_newest).inverse() * pose_of(&result.state),
+                information: result.photometric_info,
+            })
+        } else {
             // Tracked against a stored keyframe (its correction of the drift would fight the
             // window's older keyframes), or the IMU since the last keyframe is no longer
             // buffered: restart the window here.
             self.reset_window();
             return None;
-        }
+        };
+        let x_prev = *self.window.newest()?.1;
         let mut pre = Preintegration::new(x_prev.nav.t, x_prev.bias);
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
-        let visual = match self.tracker.keyframe() {
-            Some(kf) if kf.id == newest => {
-                let t_w_bk = kf.t_world_cam * self.rig.t_body_cam.inverse();
-                Some(RelativePose {
-                    t_i_j: t_w_bk.inverse() * pose_of(&result.state),
-                    information: result.photometric_info,
-                })
-            }
-            _ => None,
-        };
         let old = result.state;
         self.window.push(id, old, pre, visual);
         let started = std::time::Instant::now();
@@ -1076,9 +1119,20 @@ impl Odometry {
         let correction = pose_of(&x_new) * pose_of(&old).inverse();
         let cov = *self.tracker.covariance();
         self.tracker.reset_state(x_new, cov);
-        if let Some(xk) = self.window.state(newest) {
+        if let Some(xk) = self.window.state(newest)
+            && self.tracker.keyframe().is_some_and(|kf| kf.id == newest)
+        {
             self.tracker
                 .set_keyframe_pose(pose_of(xk) * self.rig.t_body_cam);
+        }
+        if across_return && let Some(kf) = self.tracker.keyframe() {
+            // The stored keyframe tracked (the tracker's copy) and its map seeding the new one
+            // move with the correction: the new keyframe keeps the pose tracking measured
+            // relative to them, and the frames tracked against it until the new one is
+            // installed stay in the new keyframe's world.
+            let moved = correction * kf.t_world_cam;
+            self.tracker.set_keyframe_pose(moved);
+            self.seed_correction = Some(correction);
         }
         // Stored keyframes still in the window move with it.
         for (id, x) in self.window.states() {
@@ -1119,6 +1173,18 @@ impl Odometry {
 /// Frames kept for a new keyframe's adjustment with the previous one (`tracked_frames`): more
 /// than a keyframe interval (a keyframe lasts 0.3–2 s at 20 Hz).
 const MAX_TRACKED_FRAMES: usize = 80;
+
+/// The heading and position part of the world correction `c`: the rotation about the world
+/// vertical closest to `c`'s, and the translation that moves `pivot_m` where `c` moves it.
+fn heading_part(c: &Isometry3<f64>, pivot_m: &Vector3<f64>) -> Isometry3<f64> {
+    use nalgebra::{Point3, Translation3, UnitQuaternion};
+    let r = c.rotation.to_rotation_matrix();
+    let m = r.matrix();
+    let yaw_rad = (m[(1, 0)] - m[(0, 1)]).atan2(m[(0, 0)] + m[(1, 1)]);
+    let rz = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_rad);
+    let t = c * Point3::from(*pivot_m) - rz * Point3::from(*pivot_m);
+    Isometry3::from_parts(Translation3::from(t), rz)
+}
 
 /// State `x` moved by the world correction `c` (`T_new = C · T_old`): pose and velocity.
 fn corrected_state(x: &FrameState, c: &Isometry3<f64>) -> FrameState {
@@ -1206,5 +1272,30 @@ mod tests {
         assert!((y.nav.v_world_m_s - c.rotation * x.nav.v_world_m_s).norm() < 1e-12);
         assert_eq!(y.bias, x.bias);
         assert_eq!(y.nav.t, x.nav.t);
+    }
+
+    #[test]
+    fn the_heading_part_of_a_correction_keeps_its_yaw_and_where_it_moves_the_pivot() {
+        let yaw = Isometry3::from_parts(
+            Translation3::new(0.3, -0.2, 0.1),
+            UnitQuaternion::from_scaled_axis(Vector3::z() * 0.4),
+        );
+        let pivot = Vector3::new(2.0, 1.0, -0.5);
+        let h = heading_part(&yaw, &pivot);
+        assert!((h.translation.vector - yaw.translation.vector).norm() < 1e-12);
+        assert!(h.rotation.angle_to(&yaw.rotation) < 1e-12);
+        // With a tilt on top: the tilt is dropped, the yaw and the pivot's image kept.
+        let tilted = Isometry3::from_parts(
+            yaw.translation,
+            UnitQuaternion::from_scaled_axis(Vector3::x() * 0.02) * yaw.rotation,
+        );
+        let h = heading_part(&tilted, &pivot);
+        let axis = h.rotation.axis().unwrap();
+        assert!((axis.z.abs() - 1.0).abs() < 1e-12);
+        assert!((h.rotation.angle() - 0.4).abs() < 1e-3);
+        assert!(
+            (h * nalgebra::Point3::from(pivot) - tilted * nalgebra::Point3::from(pivot)).norm()
+                < 1e-12
+        );
     }
 }
