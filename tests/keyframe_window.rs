@@ -207,11 +207,12 @@ fn a_keyframe_moved_elsewhere_is_held_there_and_the_others_stay() {
     assert_eq!(w.len(), 2);
 }
 
-/// `T_new = c · T_old` applied to every state.
+/// `T_new = c · T_old` (the body pose composed with `c`, the velocity turned with it).
 fn moved(x: &FrameState, c: &Isometry3<f64>) -> FrameState {
+    let pose = c * pose_of(x);
     let mut y = *x;
-    y.nav.r_world_body = c.rotation * x.nav.r_world_body;
-    y.nav.p_world_m = c * x.nav.p_world_m;
+    y.nav.r_world_body = pose.rotation;
+    y.nav.p_world_m = pose.translation.vector;
     y.nav.v_world_m_s = c.rotation * x.nav.v_world_m_s;
     y
 }
@@ -241,6 +242,12 @@ fn solved_with_and_without(c: &Isometry3<f64>) -> (FrameState, FrameState) {
     }
     let mut w2 = w.clone();
     w2.transform_world(c);
+    // Every state moved as a pose (the translation too, not only the rotation).
+    for ((_, a), (_, b)) in w.states().zip(w2.states()) {
+        let expect = c * pose_of(a);
+        assert!((pose_of(b).translation.vector - expect.translation.vector).norm() < 1e-12);
+        assert!(pose_of(b).rotation.angle_to(&expect.rotation) < 1e-12);
+    }
     let t = t0.add_ns(11 * KF_PERIOD_NS);
     let xt = truth(&sp, t);
     let pre = preintegrate(&sp, w.newest().unwrap().1, t);

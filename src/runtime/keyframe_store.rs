@@ -81,7 +81,7 @@ impl Default for ReuseConfig {
             probation_min_inlier_ratio: 0.6,
             redundant_baseline_ratio: 0.04,
             redundant_rotation_rad: 0.1,
-            keep_window: false,
+            keep_window: true,
         }
     }
 }
