@@ -1049,8 +1049,9 @@ impl Odometry {
     /// Adds the frame of `result` (about to become keyframe `next_kf_id`) to the window, joined to
     /// the keyframe it was tracked against (across a return to a stored keyframe, with `[reuse]
     /// keep_window`, to the window's newest through the switch's drift correction), solves, and
-    /// moves the tracker's keyframe and state onto the solution. Returns the world correction applied to the current frame
-    /// (`T_new = C · T_old`), `None` if the window is off or could not be used.
+    /// moves the tracker's keyframe and state onto the solution. Returns the world correction
+    /// applied to the current frame (`T_new = C · T_old`), `None` if the window is off or could
+    /// not be used.
     fn window_keyframe(&mut self, result: &mut TrackResult) -> Option<Isometry3<f64>> {
         let id = self.next_kf_id;
         if !self.cfg.window.enabled {
