@@ -207,16 +207,6 @@ fn a_keyframe_moved_elsewhere_is_held_there_and_the_others_stay() {
     assert_eq!(w.len(), 2);
 }
 
-/// `T_new = c · T_old` (the body pose composed with `c`, the velocity turned with it).
-fn moved(x: &FrameState, c: &Isometry3<f64>) -> FrameState {
-    let pose = c * pose_of(x);
-    let mut y = *x;
-    y.nav.r_world_body = pose.rotation;
-    y.nav.p_world_m = pose.translation.vector;
-    y.nav.v_world_m_s = c.rotation * x.nav.v_world_m_s;
-    y
-}
-
 /// The newest state after one more keyframe on a window of 10 marginalised past its 6, solved
 /// as it is and after `transform_world(c)` (the new keyframe's guess moved by `c` too).
 fn solved_with_and_without(c: &Isometry3<f64>) -> (FrameState, FrameState) {
@@ -254,7 +244,7 @@ fn solved_with_and_without(c: &Isometry3<f64>) -> (FrameState, FrameState) {
     w.push(11, guess(&xt), pre.clone(), Some(relative(&prev_true, &xt)));
     w2.push(
         11,
-        moved(&guess(&xt), c),
+        guess(&xt).moved_by_world(c),
         pre,
         Some(relative(&prev_true, &xt)),
     );
@@ -269,7 +259,7 @@ fn a_heading_and_position_change_of_the_whole_window_is_a_change_of_gauge() {
     // prior) solves to the moved solution.
     let c = Isometry3::new(Vector3::new(0.4, -1.3, 0.25), Vector3::z() * 0.5);
     let (a, b) = solved_with_and_without(&c);
-    let a = moved(&a, &c);
+    let a = a.moved_by_world(&c);
     let dp = (a.nav.p_world_m - b.nav.p_world_m).norm();
     let dv = (a.nav.v_world_m_s - b.nav.v_world_m_s).norm();
     let dr = a.nav.r_world_body.angle_to(&b.nav.r_world_body);
@@ -281,6 +271,6 @@ fn a_heading_and_position_change_of_the_whole_window_is_a_change_of_gauge() {
     // A tilt is not a change of gauge (gravity sees it): the same comparison fails.
     let tilt = Isometry3::new(Vector3::zeros(), Vector3::x() * 0.05);
     let (a, b) = solved_with_and_without(&tilt);
-    let a = moved(&a, &tilt);
+    let a = a.moved_by_world(&tilt);
     assert!((a.nav.v_world_m_s - b.nav.v_world_m_s).norm() > 1e-3);
 }

@@ -8,7 +8,7 @@
 use super::ImuNoise;
 use super::integration::{ImuBias, NavState, Preintegration, gravity_world};
 use crate::geometry::{exp_so3, hat, log_so3, right_jacobian, right_jacobian_inv};
-use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Isometry3, Matrix3, SMatrix, SVector, Translation3, Vector3};
 
 /// 15-vector in the order of eq. 11 / eq. 13.
 pub type Vector15 = SVector<f64, 15>;
@@ -32,6 +32,20 @@ pub struct FrameState {
 }
 
 impl FrameState {
+    /// This state in a world moved by `c` (`T_new = c · T_old`): the body pose composed with `c`,
+    /// the velocity turned with it; time and biases kept.
+    pub fn moved_by_world(&self, c: &Isometry3<f64>) -> FrameState {
+        let pose = c * Isometry3::from_parts(
+            Translation3::from(self.nav.p_world_m),
+            self.nav.r_world_body,
+        );
+        let mut y = *self;
+        y.nav.r_world_body = pose.rotation;
+        y.nav.p_world_m = pose.translation.vector;
+        y.nav.v_world_m_s = c.rotation * self.nav.v_world_m_s;
+        y
+    }
+
     /// Every component (pose, velocity, biases) is finite.
     pub fn is_finite(&self) -> bool {
         let n = &self.nav;

@@ -21,7 +21,7 @@ use crate::imu::{
     FrameState, ImuNoise, Matrix15, Preintegration, Vector15, imu_residual,
     imu_residual_covariance, residual::imu_jacobian_i,
 };
-use nalgebra::{DMatrix, DVector, Isometry3, Point3};
+use nalgebra::{DMatrix, DVector, Isometry3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::ops::AddAssign;
@@ -180,11 +180,7 @@ impl KeyframeWindow {
     /// a change of gauge: the window's solution moves with it and nothing else does. (The prior's
     /// velocity rows turn with it: they are in the world frame, the rest in the body frame.)
     pub fn transform_world(&mut self, c: &Isometry3<f64>) {
-        let move_state = |x: &mut FrameState| {
-            x.nav.r_world_body = c.rotation * x.nav.r_world_body;
-            x.nav.p_world_m = c.transform_point(&Point3::from(x.nav.p_world_m)).coords;
-            x.nav.v_world_m_s = c.rotation * x.nav.v_world_m_s;
-        };
+        let move_state = |x: &mut FrameState| *x = x.moved_by_world(c);
         for n in self.nodes.iter_mut() {
             move_state(&mut n.state);
         }

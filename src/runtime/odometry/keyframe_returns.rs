@@ -12,7 +12,6 @@ impl Odometry {
         self.reusing = false;
         self.reuse_previous = None;
         self.switch_correction = None;
-        self.measure_switch = false;
     }
 
     /// The tracker asks for a new keyframe: if a stored keyframe (not the one tracked, not one
@@ -49,8 +48,7 @@ impl Odometry {
         // Frames since the last keyframe carry the drift the stored keyframe corrects.
         self.history.clear();
         if !self.reusing {
-            self.switch_correction = None;
-            self.measure_switch = true;
+            self.switch_correction = Some(SwitchCorrection::Pending);
             // Leaving the chain of new keyframes: the stored keyframes agree with each other,
             // not with the drift of the chain. Position and heading drift; tilt does not
             // (gravity observes it), so a stored keyframe may move the first two only.
@@ -116,7 +114,6 @@ impl Odometry {
                 self.track_again(s);
                 self.reusing = false;
                 self.switch_correction = None;
-                self.measure_switch = false;
             }
             None => {
                 // (Not reached: a switch always leaves a keyframe behind.)

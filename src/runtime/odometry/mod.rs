@@ -436,13 +436,9 @@ pub struct Odometry {
     reusing: bool,
     /// The mapper's keyframe left for a stored one (returned to if the stored one fails).
     left_kf: Option<StoredKeyframe>,
-    /// The world correction `C` (`T_stored = C · T_chain`) the first frame on a stored keyframe
-    /// made, switched to from the chain of new keyframes: its tracked pose against its IMU
-    /// prediction from the last frame on the chain; and that predicted position, m (`[reuse]
-    /// keep_window`).
-    switch_correction: Option<(Isometry3<f64>, Vector3<f64>)>,
-    /// The next frame measures `switch_correction`.
-    measure_switch: bool,
+    /// The drift correction of the last switch from the chain of new keyframes to a stored one
+    /// (`[reuse] keep_window`), pending until the first frame on the stored keyframe.
+    switch_correction: Option<SwitchCorrection>,
     /// The keyframe window's correction of the keyframe about to be started across a return
     /// (`[reuse] keep_window`): the stored map seeding it moves with it.
     seed_correction: Option<Isometry3<f64>>,
@@ -582,7 +578,6 @@ impl Odometry {
             reusing: false,
             left_kf: None,
             switch_correction: None,
-            measure_switch: false,
             seed_correction: None,
             resume: None,
             resumed: false,
@@ -833,7 +828,7 @@ impl Odometry {
                         }
                         for (f, x) in self.tracked_frames.iter_mut() {
                             f.t_world_cam = c * f.t_world_cam;
-                            *x = corrected_state(x, &c);
+                            *x = x.moved_by_world(&c);
                         }
                     }
                     if let Some(e) = self.scale.estimate(self.imu.make_contiguous()) {
@@ -988,11 +983,11 @@ impl Odometry {
                 nav: pre.predict(&x0.nav, &x0.bias),
                 bias: x0.bias,
             };
-            if std::mem::take(&mut self.measure_switch) && r.flag.is_none() {
-                self.switch_correction = Some((
-                    pose_of(&r.state) * pose_of(&predicted).inverse(),
-                    predicted.nav.p_world_m,
-                ));
+            if self.switch_correction == Some(SwitchCorrection::Pending) {
+                self.switch_correction = r.flag.is_none().then(|| SwitchCorrection::Measured {
+                    c: pose_of(&r.state) * pose_of(&predicted).inverse(),
+                    pivot_m: predicted.nav.p_world_m,
+                });
             }
             predicted.nav.p_world_m
         } else {
@@ -1076,7 +1071,8 @@ impl Odometry {
                         information: result.photometric_info,
                     }
                 })
-        } else if let Some((c, pivot)) = self.switch_correction
+        } else if let Some(SwitchCorrection::Measured { c, pivot_m: pivot }) =
+            self.switch_correction
             && self.reusing
             && self.cfg.reuse.keep_window
             && buffered
@@ -1175,6 +1171,19 @@ impl Odometry {
 /// than a keyframe interval (a keyframe lasts 0.3–2 s at 20 Hz).
 const MAX_TRACKED_FRAMES: usize = 80;
 
+/// The drift correction a switch to a stored keyframe makes (`Odometry::switch_correction`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum SwitchCorrection {
+    /// Switched; the next frame, tracked on the stored keyframe, measures it.
+    Pending,
+    /// `T_stored = c · T_chain` from that frame's tracked pose against its IMU prediction from
+    /// the last frame on the chain, and that predicted position, m.
+    Measured {
+        c: Isometry3<f64>,
+        pivot_m: Vector3<f64>,
+    },
+}
+
 /// The heading and position part of the world correction `c`: the rotation about the world
 /// vertical closest to `c`'s, and the translation that moves `pivot_m` where `c` moves it.
 fn heading_part(c: &Isometry3<f64>, pivot_m: &Vector3<f64>) -> Isometry3<f64> {
@@ -1185,16 +1194,6 @@ fn heading_part(c: &Isometry3<f64>, pivot_m: &Vector3<f64>) -> Isometry3<f64> {
     let rz = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_rad);
     let t = c * Point3::from(*pivot_m) - rz * Point3::from(*pivot_m);
     Isometry3::from_parts(Translation3::from(t), rz)
-}
-
-/// State `x` moved by the world correction `c` (`T_new = C · T_old`): pose and velocity.
-fn corrected_state(x: &FrameState, c: &Isometry3<f64>) -> FrameState {
-    let p = c * pose_of(x);
-    let mut y = *x;
-    y.nav.r_world_body = p.rotation;
-    y.nav.p_world_m = p.translation.vector;
-    y.nav.v_world_m_s = c.rotation * x.nav.v_world_m_s;
-    y
 }
 
 /// At rest at the origin with attitude `r_world_body` and gyro bias `bg`.
@@ -1266,7 +1265,7 @@ mod tests {
             Translation3::new(0.1, -0.05, 0.02),
             UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.2)),
         );
-        let y = corrected_state(&x, &c);
+        let y = x.moved_by_world(&c);
         let expect = c * pose_of(&x);
         assert!((pose_of(&y).translation.vector - expect.translation.vector).norm() < 1e-12);
         assert!(pose_of(&y).rotation.angle_to(&expect.rotation) < 1e-12);
