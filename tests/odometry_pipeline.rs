@@ -457,9 +457,12 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     assert_eq!(without.odometry.keyframes_stored, 0);
     // Back on the first lap's maps, fewer new keyframes are needed…
     assert!(with.odometry.keyframes < without.odometry.keyframes);
-    // …the turn on the spot is tracked through (it is lost without the depthless pixels)…
+    // …the turn on the spot is tracked through (it is lost without the depthless pixels), on
+    // keyframes the tracking thread makes itself (`fill_without_mapper`)…
     assert_eq!(with.odometry.resets, 0);
     assert!(without.odometry.resets > 0);
+    assert!(with.odometry.spot_turn_keyframes > 0);
+    assert_eq!(without.odometry.spot_turn_keyframes, 0);
     // …and the drift of the first lap is not carried on.
     assert!(e_with.ate_rmse_m < e_without.ate_rmse_m);
     assert!(

@@ -65,6 +65,12 @@ pub struct ReuseConfig {
     /// the IMU's hold on the velocity survives the return. (S-V101 seeds 1–6 0.42–3.98 m with
     /// it, 0.20–96.5 m without; README, *A return that keeps the keyframe window*.)
     pub keep_window: bool,
+    /// A stored keyframe that fails its probation sends the tracker back to the keyframe it
+    /// left only if at least this fraction of that one's points (`overlap_level`) is still in
+    /// view; otherwise a new keyframe is started from the current frame, on the failing one. (In
+    /// the demo's hover turn the keyframe left lies seconds behind and out of view: going back
+    /// to it was how every reset of the demo happened.) 0 = always go back.
+    pub return_min_overlap: f64,
 }
 
 impl Default for ReuseConfig {
@@ -83,6 +89,7 @@ impl Default for ReuseConfig {
             redundant_baseline_ratio: 0.04,
             redundant_rotation_rad: 0.1,
             keep_window: true,
+            return_min_overlap: 0.4,
         }
     }
 }

@@ -36,6 +36,12 @@ pub struct ReplayReport {
     pub keyframe_reuse_failures: usize,
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
+    /// Keyframes of turns on the spot made by the tracking thread without waiting for the mapper
+    /// (`[bootstrap] fill_without_mapper`).
+    pub spot_turn_keyframes: usize,
+    /// Stored keyframes that failed their probation while the keyframe left for them was out of
+    /// view: a new keyframe was started instead of going back (`[reuse] return_min_overlap`).
+    pub returns_out_of_view: usize,
     /// Frames whose velocity was set to zero: the IMU said the vehicle rests (`[bootstrap] zupt_*`).
     pub zero_velocity_updates: usize,
     /// Scale factor applied to the first map by each take-off refinement pass.
@@ -68,6 +74,9 @@ pub struct ReplayReport {
     /// Of `resets`, losses of the image (a covered lens) that resumed tracking on the keyframe
     /// lost instead of building a new first map (`[bootstrap] resume_max_s`).
     pub resumes: u32,
+    /// Of `resets`, losses by motion that relocalised on a stored keyframe covering the
+    /// IMU-predicted view instead of building a new first map (`[bootstrap] relocalise`).
+    pub relocalisations: u32,
     /// Mapper views dropped by the tracking thread, its queue full (real-time mode).
     pub mapping_jobs_dropped: usize,
     /// Views skipped by the mapper to keep up with the camera (real-time mode).
@@ -202,6 +211,8 @@ impl ReplayReport {
             keyframe_reuses: out.odometry.keyframe_reuses,
             keyframe_reuse_failures: out.odometry.keyframe_reuse_failures,
             keyframes_stored: out.odometry.keyframes_stored,
+            spot_turn_keyframes: out.odometry.spot_turn_keyframes,
+            returns_out_of_view: out.odometry.returns_out_of_view,
             zero_velocity_updates: out.odometry.zero_velocity_updates,
             takeoff_scale_corrections: out.odometry.takeoff_scales.clone(),
             takeoff_refinement_ms: out
@@ -240,6 +251,7 @@ impl ReplayReport {
             },
             resets: out.odometry.resets,
             resumes: out.odometry.resumes,
+            relocalisations: out.odometry.relocalisations,
             mapping_jobs_dropped: out.odometry.jobs_dropped,
             mapping_views_skipped: out.mapping.views_skipped,
             mapping_ms_mean: if map_ms.is_empty() {
@@ -381,6 +393,14 @@ impl ReplayReport {
             ),
         );
         row(
+            "turn keyframes (tracker)",
+            self.spot_turn_keyframes.to_string(),
+        );
+        row(
+            "failed returns, left out of view",
+            self.returns_out_of_view.to_string(),
+        );
+        row(
             "zero-velocity updates",
             self.zero_velocity_updates.to_string(),
         );
@@ -422,8 +442,8 @@ impl ReplayReport {
         row(
             "resets",
             format!(
-                "{} ({} resumed on the keyframe lost)",
-                self.resets, self.resumes
+                "{} ({} resumed on the keyframe lost, {} relocalised on a stored one)",
+                self.resets, self.resumes, self.relocalisations
             ),
         );
         if self.semidense_points > 0 {

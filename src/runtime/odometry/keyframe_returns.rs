@@ -95,33 +95,60 @@ impl Odometry {
         }
     }
 
-    /// A stored keyframe lost track: mark it failed and track the keyframe left for it again.
-    pub(super) fn return_from_stored_keyframe(&mut self) {
+    /// A stored keyframe lost track: mark it failed and track the keyframe left for it again —
+    /// if that one is still in view (`return_min_overlap`). Returns whether it went back; if not,
+    /// the failing keyframe stays tracked until a new one replaces it.
+    pub(super) fn return_from_stored_keyframe(&mut self) -> bool {
         if let Some(id) = self.tracking_kf {
             self.failed_reuse.push(id);
         }
         self.stats.keyframe_reuse_failures += 1;
-        if let Some(s) = self.reuse_previous.take() {
-            // Back to the stored keyframe tracked before (still reusing, on probation again):
-            // after a chain of stored keyframes the one left in the chain of new keyframes may
-            // be seconds behind and out of view.
-            self.track_again(s);
-            self.reuse_frames = 0;
-            return;
-        }
-        match self.left_kf.take() {
-            Some(s) => {
-                self.track_again(s);
-                self.reusing = false;
-                self.switch_correction = None;
+        let t_world_cam = self.tracker.t_world_cam();
+        let (level, border_px, min) = (
+            self.cfg.reuse.overlap_level,
+            self.cfg.tracking.border_px,
+            self.cfg.reuse.return_min_overlap,
+        );
+        let target = go_back_to(
+            self.reuse_previous.as_ref(),
+            self.left_kf.as_ref(),
+            |s: &StoredKeyframe| s.kf.predicted_overlap(&t_world_cam, level, border_px) >= min,
+        );
+        match target {
+            GoBack::Previous => {
+                // Back to the stored keyframe tracked before (still reusing, on probation
+                // again): after a chain of stored keyframes the one left in the chain of new
+                // keyframes may be seconds behind and out of view.
+                if let Some(s) = self.reuse_previous.take() {
+                    self.track_again(s);
+                }
+                self.reuse_frames = 0;
             }
-            None => {
-                // (Not reached: a switch always leaves a keyframe behind.)
-                self.lose_keyframe();
-                self.phase = Phase::Lost;
-                self.stats.resets += 1;
+            GoBack::Left => {
+                self.reuse_previous = None;
+                match self.left_kf.take() {
+                    Some(s) => {
+                        self.track_again(s);
+                        self.reusing = false;
+                        self.switch_correction = None;
+                    }
+                    None => {
+                        // (Not reached: a switch always leaves a keyframe behind.)
+                        self.lose_keyframe();
+                        self.phase = Phase::Lost;
+                        self.stats.resets += 1;
+                    }
+                }
+            }
+            GoBack::Stay => {
+                self.reuse_previous = None;
+                self.stats.returns_out_of_view += 1;
+                // Failed, but tracked on until a new keyframe replaces it: its probation is over.
+                self.reuse_frames = self.cfg.reuse.probation_frames + 1;
+                return false;
             }
         }
+        true
     }
 
     /// Tracks keyframe `s` again (gone back to after a stored keyframe failed).
@@ -132,5 +159,115 @@ impl Odometry {
         self.history.clear();
         self.keyframe_jump = true;
         self.consecutive_flagged = 0;
+    }
+}
+
+/// Where a stored keyframe that failed its probation sends the tracker.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum GoBack {
+    /// The stored keyframe tracked before it (it had passed its own probation).
+    Previous,
+    /// The keyframe left in the chain of new keyframes for the stored ones.
+    Left,
+    /// Nowhere: both are out of view; the failing keyframe stays tracked and a new keyframe is
+    /// started from the current frame.
+    Stay,
+}
+
+/// The choice of [`Odometry::return_from_stored_keyframe`]: the stored keyframe tracked before,
+/// if any and `in_view`; else the keyframe left, if `in_view` (or if there is none: the loss
+/// that follows is what happened before `return_min_overlap`); else stay.
+fn go_back_to(
+    previous: Option<&StoredKeyframe>,
+    left: Option<&StoredKeyframe>,
+    in_view: impl Fn(&StoredKeyframe) -> bool,
+) -> GoBack {
+    if previous.is_some_and(&in_view) {
+        GoBack::Previous
+    } else if left.is_some_and(|s| !in_view(s)) {
+        GoBack::Stay
+    } else {
+        GoBack::Left
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::semidense::MapPoint;
+
+    /// A keyframe at the origin looking along +z at a textured plane 2 m away, with its map.
+    fn stored(id: u32, t_world_cam: Isometry3<f64>) -> StoredKeyframe {
+        let cam = CameraModel::euroc_cam0();
+        let pyr = textured_pyramid(&cam);
+        let cfg = TrackerConfig::default();
+        let pts: Vec<DepthPoint> = select_gradient_pixels(&pyr, &cfg)
+            .into_iter()
+            .map(|(x, y)| DepthPoint {
+                u_px: x as f32,
+                v_px: y as f32,
+                inv_depth_m_inv: 0.5,
+            })
+            .collect();
+        let map = SemidenseMap {
+            t_world_cam,
+            camera: cam,
+            points: pts
+                .iter()
+                .map(|p| MapPoint {
+                    u_px: p.u_px,
+                    v_px: p.v_px,
+                    inv_depth_m_inv: p.inv_depth_m_inv,
+                    inv_depth_std_m_inv: 0.01,
+                    num_views: 3,
+                })
+                .collect(),
+        };
+        let kf = Keyframe::new(id, TimeNs(0), &pyr, &cam, t_world_cam, &pts, &cfg);
+        StoredKeyframe {
+            kf,
+            map: Arc::new(map),
+        }
+    }
+
+    /// The demo's hover turn: the stored keyframe on probation fails half-way through the turn,
+    /// and the keyframe left for it faces where the camera looked a second ago.
+    #[test]
+    fn a_failed_return_goes_back_only_to_a_keyframe_still_in_view() {
+        let cfg = ReuseConfig::default();
+        let border_px = TrackerConfig::default().border_px;
+        let ahead = stored(1, Isometry3::identity());
+        // Turned by 0.2 rad: still mostly in view. Turned by 1.5 rad: out of view.
+        let turned = |yaw: f64| Isometry3::new(Vector3::zeros(), Vector3::y() * yaw);
+        let (near, behind) = (stored(2, turned(0.2)), stored(3, turned(1.5)));
+        let camera = turned(0.1);
+        let in_view = |s: &StoredKeyframe| {
+            s.kf.predicted_overlap(&camera, cfg.overlap_level, border_px) >= cfg.return_min_overlap
+        };
+        assert!(in_view(&ahead) && in_view(&near) && !in_view(&behind));
+        // Before `return_min_overlap`: always back (to the previous stored one first).
+        assert_eq!(
+            go_back_to(Some(&behind), Some(&behind), |_| true),
+            GoBack::Previous
+        );
+        assert_eq!(go_back_to(None, Some(&behind), |_| true), GoBack::Left);
+        // Now: the previous stored keyframe if it is in view, else the one left if it is…
+        assert_eq!(
+            go_back_to(Some(&near), Some(&behind), in_view),
+            GoBack::Previous
+        );
+        assert_eq!(
+            go_back_to(Some(&behind), Some(&ahead), in_view),
+            GoBack::Left
+        );
+        assert_eq!(go_back_to(None, Some(&ahead), in_view), GoBack::Left);
+        // …else stay (and start a new keyframe from here).
+        assert_eq!(
+            go_back_to(Some(&behind), Some(&behind), in_view),
+            GoBack::Stay
+        );
+        assert_eq!(go_back_to(None, Some(&behind), in_view), GoBack::Stay);
+        // No keyframe left at all: as before (the tracker is lost).
+        assert_eq!(go_back_to(None, None, in_view), GoBack::Left);
     }
 }

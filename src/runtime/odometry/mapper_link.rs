@@ -4,6 +4,8 @@
 //! tracked one, for tracking.
 
 use super::*;
+use crate::mapping::semidense::MapPoint;
+use nalgebra::{Point3, Vector2};
 
 impl Odometry {
     pub(super) fn next_seq(&mut self) -> u64 {
@@ -291,16 +293,7 @@ impl Odometry {
         if !install {
             return;
         }
-        let mut pts: Vec<DepthPoint> = s
-            .map
-            .points
-            .iter()
-            .map(|p| DepthPoint {
-                u_px: p.u_px,
-                v_px: p.v_px,
-                inv_depth_m_inv: p.inv_depth_m_inv,
-            })
-            .collect();
+        let mut pts = depth_points(&s.map);
         let filled = fill.is_some();
         let pyr = match fill {
             Some((pyr, f)) => {
@@ -334,6 +327,76 @@ impl Odometry {
             kf
         };
         self.install_keyframe(kf, s, is_new, filled, false);
+    }
+
+    /// `[bootstrap] fill_without_mapper`: the keyframe just started (`pending_kf`, at `t`, of
+    /// `image`, the frame just tracked) is barely displaced from the one tracked — a turn on the
+    /// spot, where nothing new can be triangulated — so the tracking thread makes it at once
+    /// instead of waiting for the mapper: the tracked map's points moved into it (a rotation
+    /// keeps their depths meaningful), its other gradient pixels at their median inverse depth.
+    /// It is installed as a keyframe of guessed depths (`filled`), exactly as the mapper's first
+    /// map of a turn on the spot would be; the mapper's own map of it replaces it once it has
+    /// `fill_depthless_below_points` points.
+    pub(super) fn install_spot_turn_keyframe(&mut self, t: TimeNs, image: &Arc<Image<u8>>) {
+        let b = &self.cfg.bootstrap;
+        if !b.fill_without_mapper || b.fill_depthless_below_points == 0 {
+            return;
+        }
+        let (Some(id), Some(old), Some(old_map)) = (
+            self.pending_kf,
+            self.tracker.keyframe(),
+            self.tracking_map.as_ref(),
+        ) else {
+            return;
+        };
+        let t_world_cam = self.tracker.t_world_cam();
+        let baseline_m =
+            (t_world_cam.translation.vector - old.t_world_cam.translation.vector).norm();
+        if baseline_m.is_nan() || baseline_m >= b.fill_max_baseline_ratio * old.median_depth_m {
+            return;
+        }
+        let points = moved_map_points(
+            old_map,
+            &(t_world_cam.inverse() * old.t_world_cam),
+            &self.rig.camera,
+            self.cfg.tracking.border_px.max(1.0),
+        );
+        let map = SemidenseMap {
+            t_world_cam: self.mapper_from_world * t_world_cam,
+            camera: self.rig.camera,
+            points,
+        };
+        let Some(median_inv) = median_inv_depth(&map).or(self.last_median_inv_depth) else {
+            return;
+        };
+        let pyr = self.tracker.frame_pyramid();
+        let fill = depthless_points(pyr, &map, median_inv, &self.cfg.tracking);
+        if map.points.len() + fill.len() < b.min_keyframe_points {
+            return;
+        }
+        let mut pts = depth_points(&map);
+        pts.extend(fill);
+        let kf = Keyframe::new(
+            id,
+            t,
+            pyr,
+            &self.rig.camera,
+            t_world_cam,
+            &pts,
+            &self.cfg.tracking,
+        );
+        let s = MapSnapshot {
+            seq: 0,
+            keyframe_id: id,
+            keyframe_t: t,
+            keyframe_image: image.clone(),
+            map: Arc::new(map),
+            views: 0,
+            forward_views: 0,
+            time_s: 0.0,
+        };
+        self.stats.spot_turn_keyframes += 1;
+        self.install_keyframe(kf, &s, true, true, false);
     }
 
     /// Makes `kf` (of snapshot `s`) the keyframe tracked against: a new one (`is_new`) or a refresh
@@ -414,6 +477,18 @@ fn new_keyframe_ready(
         || (realtime && adjustable)
 }
 
+/// A map's points as the tracker's keyframe takes them.
+fn depth_points(map: &SemidenseMap) -> Vec<DepthPoint> {
+    map.points
+        .iter()
+        .map(|p| DepthPoint {
+            u_px: p.u_px,
+            v_px: p.v_px,
+            inv_depth_m_inv: p.inv_depth_m_inv,
+        })
+        .collect()
+}
+
 /// The keyframe's level-0 gradient pixels (as the tracker selects them) in cells of its image
 /// that `map` has no point in, at the map's median inverse depth.
 fn depthless_points(
@@ -446,6 +521,53 @@ fn depthless_points(
         .collect()
 }
 
+/// The points of `map` (a keyframe's) as seen from a camera at `t_new_old` (the keyframe's
+/// camera in the new one), in the new camera's pixels: each moved to its nearest integer pixel at
+/// least `border_px` inside the image, the nearest point where several land on one pixel; inverse
+/// depth and its standard deviation scaled by the change of depth.
+fn moved_map_points(
+    map: &SemidenseMap,
+    t_new_old: &Isometry3<f64>,
+    camera: &CameraModel,
+    border_px: f64,
+) -> Vec<MapPoint> {
+    let mut moved: Vec<(usize, MapPoint)> = Vec::with_capacity(map.points.len());
+    for p in &map.points {
+        if p.inv_depth_m_inv.is_nan() || p.inv_depth_m_inv <= 0.0 {
+            continue;
+        }
+        let Some(ray) = camera.unproject(&Vector2::new(p.u_px as f64, p.v_px as f64)) else {
+            continue;
+        };
+        let x_new = t_new_old * Point3::from(ray / p.inv_depth_m_inv as f64);
+        let Some(uv) = camera.project(&x_new.coords) else {
+            continue;
+        };
+        let uv = uv.map(f64::round);
+        if !camera.in_image(&uv, border_px) {
+            continue;
+        }
+        let inv = (1.0 / x_new.z) as f32;
+        moved.push((
+            uv.y as usize * camera.width + uv.x as usize,
+            MapPoint {
+                u_px: uv.x as f32,
+                v_px: uv.y as f32,
+                inv_depth_m_inv: inv,
+                inv_depth_std_m_inv: p.inv_depth_std_m_inv * inv / p.inv_depth_m_inv,
+                num_views: p.num_views,
+            },
+        ));
+    }
+    // Row-major pixel order, the nearest point first on each pixel; then one per pixel.
+    moved.sort_by(|a, b| {
+        a.0.cmp(&b.0)
+            .then(b.1.inv_depth_m_inv.total_cmp(&a.1.inv_depth_m_inv))
+    });
+    moved.dedup_by_key(|m| m.0);
+    moved.into_iter().map(|(_, p)| p).collect()
+}
+
 /// Median inverse depth of a map's points, 1/m.
 fn median_inv_depth(map: &SemidenseMap) -> Option<f32> {
     let mut inv: Vec<f32> = map.points.iter().map(|p| p.inv_depth_m_inv).collect();
@@ -459,7 +581,7 @@ fn median_inv_depth(map: &SemidenseMap) -> Option<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mapping::semidense::MapPoint;
+    use approx::assert_relative_eq;
 
     #[test]
     fn a_new_keyframe_waits_for_forward_views_offline_and_for_its_adjustment_views_in_real_time() {
@@ -491,14 +613,79 @@ mod tests {
         }
     }
 
+    /// A turn on the spot's keyframe made by the tracker: the tracked map's points moved into
+    /// it must land where the camera sees them, at their depth in the new camera, one per pixel
+    /// (the nearest), none outside the image.
+    #[test]
+    fn map_points_moved_into_a_turned_camera_land_where_it_sees_them() {
+        let cam = CameraModel::euroc_cam0();
+        let point = |u: f32, v: f32, inv: f32| MapPoint {
+            u_px: u,
+            v_px: v,
+            inv_depth_m_inv: inv,
+            inv_depth_std_m_inv: 0.02 * inv,
+            num_views: 4,
+        };
+        // A grid over the image at 2 m, a second point at 1 m on one of its pixels and one at
+        // the left edge, which the turn takes out of the image.
+        let mut points: Vec<MapPoint> = (20..460)
+            .step_by(40)
+            .flat_map(|v| (100..700).step_by(40).map(move |u| (u, v)))
+            .map(|(u, v)| point(u as f32, v as f32, 0.5))
+            .collect();
+        let grid = points.len();
+        points.push(point(300.0, 220.0, 1.0));
+        points.push(point(8.0, 240.0, 0.5));
+        let map = SemidenseMap {
+            t_world_cam: Isometry3::identity(),
+            camera: cam,
+            points,
+        };
+        // The camera turned by 0.15 rad about its y axis (to the right: points move left), on
+        // the spot: the old camera in the new one.
+        let t_new_old = Isometry3::new(Vector3::zeros(), Vector3::y() * -0.15);
+        let moved = moved_map_points(&map, &t_new_old, &cam, 2.0);
+        // Every grid point stays in view (the grid starts 100 px inside), the edge point leaves,
+        // and of the two on one pixel only one is kept.
+        assert_eq!(moved.len(), grid, "{}", moved.len());
+        let mut pixels: Vec<_> = moved
+            .iter()
+            .map(|p| (p.u_px as i32, p.v_px as i32))
+            .collect();
+        pixels.sort_unstable();
+        pixels.dedup();
+        assert_eq!(pixels.len(), moved.len(), "two points on one pixel");
+        for p in &map.points[..grid] {
+            let ray = cam
+                .unproject(&Vector2::new(p.u_px as f64, p.v_px as f64))
+                .unwrap();
+            // Of the two on (300, 220), the nearer one (1 m).
+            let inv = if (p.u_px, p.v_px) == (300.0, 220.0) {
+                1.0
+            } else {
+                0.5
+            };
+            let x = t_new_old * Point3::from(ray / inv);
+            let uv = cam.project(&x.coords).unwrap();
+            assert!(uv.x < p.u_px as f64 - 50.0, "the turn moves points left");
+            let m = moved
+                .iter()
+                .find(|m| m.u_px == uv.x.round() as f32 && m.v_px == uv.y.round() as f32)
+                .expect("grid point moved");
+            assert_relative_eq!(m.inv_depth_m_inv, (1.0 / x.z) as f32, max_relative = 1e-5);
+            assert_relative_eq!(
+                m.inv_depth_std_m_inv / m.inv_depth_m_inv,
+                0.02,
+                max_relative = 1e-4
+            );
+            assert_eq!(m.num_views, 4);
+        }
+    }
+
     #[test]
     fn depthless_pixels_fill_only_cells_without_map_points() {
         let cam = CameraModel::euroc_cam0();
-        let img = Image::from_fn(cam.width, cam.height, |x, y| {
-            128.0f32 + 60.0 * ((x as f32) * 0.3).sin() * ((y as f32) * 0.25).cos()
-        });
-        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
-        pyr.fill_from_f32(&img);
+        let pyr = textured_pyramid(&cam);
         let cfg = TrackerConfig::default();
         // Map points over the left half of the image.
         let points = (0..cam.height as u32)

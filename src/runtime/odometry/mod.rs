@@ -16,16 +16,20 @@
 //!   [`KeyframeStore`]: back at a mapped place, the pose is measured against the older, less
 //!   drifted map instead of one more link of the chain; the current pose is made uncertain in
 //!   position and heading for that, and a stored keyframe that loses its inliers within
-//!   `probation_frames` is left again). Otherwise the current frame starts a new keyframe
-//!   (seeded by propagating the map of the keyframe tracked and by the last few frames). Frames
-//!   that start nothing refine the mapper's keyframe's depths. In a turn on the spot nothing can
-//!   be triangulated and each propagated map keeps only the part of the view that is leaving:
-//!   a keyframe barely displaced from the one tracked, with a thin map, is tracked with its
-//!   depthless gradient pixels too, at the last median depth (any depth serves a rotation), and
-//!   installed at once.
+//!   `probation_frames` is left again — for the keyframe left, if that one is still in view,
+//!   else for a new keyframe started from the current frame). Otherwise the current frame starts
+//!   a new keyframe (seeded by propagating the map of the keyframe tracked and by the last few
+//!   frames). Frames that start nothing refine the mapper's keyframe's depths. In a turn on the
+//!   spot nothing can be triangulated and each propagated map keeps only the part of the view
+//!   that is leaving: a keyframe barely displaced from the one tracked is made by this thread at
+//!   once (`fill_without_mapper`: the tracked map's points moved into it, its other gradient
+//!   pixels at the median depth — any depth serves a rotation), and the mapper's map of it
+//!   replaces it once it is full.
 //! * [`Phase::Lost`]: several consecutive frames had too few photometric inliers (covered lens,
-//!   dark). Poses are IMU-only; as soon as the image has texture again a new keyframe is started
-//!   as in the bootstrap, and the reset is counted.
+//!   dark, a keyframe left behind). Poses are IMU-only; a short loss of the image resumes on the
+//!   keyframe lost (`resume_max_s`), a loss by motion relocalises on a stored keyframe covering
+//!   the IMU-predicted view (`relocalise`); otherwise, as soon as the image has texture again, a
+//!   new keyframe is started as in the bootstrap. Each loss is counted as a reset.
 //!
 //! # Determinism
 //! In offline mode every job's snapshot is awaited a fixed number of frames later
@@ -122,6 +126,11 @@ pub struct BootstrapConfig {
     /// …if at least this fraction of that keyframe's points project into the IMU-predicted view;
     /// else on the stored keyframe that covers it (`[reuse]`), if one does.
     pub resume_min_overlap: f64,
+    /// A tracker lost by motion (few inliers) relocalises on the stored keyframe that covers
+    /// the IMU-predicted view (`[reuse]`: as a return to it, on probation), if one does, instead
+    /// of building a new first map from an IMU baseline whose scale is that of the velocity
+    /// error after the loss. Counted as a reset either way.
+    pub relocalise: bool,
     /// Rebuild the tracking keyframe from a refined map at most every this many frames.
     pub refresh_every_frames: u32,
     /// Offline replays use a job's snapshot this many frames after sending it (1: the mapper
@@ -151,6 +160,12 @@ pub struct BootstrapConfig {
     pub fill_depthless_below_points: usize,
     /// …if it is closer than this to the keyframe tracked, over that one's median depth.
     pub fill_max_baseline_ratio: f64,
+    /// A keyframe started that close to the one tracked (a turn on the spot) is made by the
+    /// tracking thread at once — the tracked map's points moved into it, its other gradient
+    /// pixels at the median depth — instead of waiting for the mapper's first map of it, which
+    /// in real time comes 4–8 frames later, when a fast turn has left the keyframe tracked
+    /// meanwhile. The mapper's map replaces it once it has `fill_depthless_below_points`.
+    pub fill_without_mapper: bool,
     /// After a static start, the first map's views are re-posed (`takeoff_refinement`) and the
     /// first map triangulated again from them this many times before it is tracked
     /// ([`super::takeoff`]; 0 = the paper's bootstrap by dead reckoning alone).
@@ -221,6 +236,7 @@ impl Default for BootstrapConfig {
             lost_after_frames: 3,
             resume_max_s: 2.0,
             resume_min_overlap: 0.4,
+            relocalise: true,
             min_texture_points: 1500,
             refresh_every_frames: 2,
             offline_lag_frames: 2,
@@ -233,6 +249,7 @@ impl Default for BootstrapConfig {
             rest_min_tilt_std_rad: 1e-3,
             fill_depthless_below_points: 1500,
             fill_max_baseline_ratio: 0.03,
+            fill_without_mapper: true,
             refine_takeoff_passes: 2,
             takeoff_lag_frames: 0,
             takeoff_max_pass_frames: 30,
@@ -310,6 +327,17 @@ pub struct OdometryConfig {
     pub realtime: bool,
 }
 
+/// A sinusoidal texture over the whole image, for tests that need gradient pixels everywhere.
+#[cfg(test)]
+fn textured_pyramid(cam: &CameraModel) -> Pyramid {
+    let img = Image::from_fn(cam.width, cam.height, |x, y| {
+        128.0f32 + 60.0 * ((x as f32) * 0.3).sin() * ((y as f32) * 0.25).cos()
+    });
+    let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+    pyr.fill_from_f32(&img);
+    pyr
+}
+
 /// Counters for the report.
 #[derive(Clone, Debug, Default)]
 pub struct OdometryStats {
@@ -320,11 +348,18 @@ pub struct OdometryStats {
     pub resets: u32,
     /// Of `resets`, those that resumed tracking against the keyframe lost (`resume_max_s`).
     pub resumes: u32,
+    /// Of `resets`, those that relocalised on a stored keyframe (`[bootstrap] relocalise`).
+    pub relocalisations: u32,
     pub keyframes: usize,
     /// Times the tracker returned to a stored keyframe instead of starting a new one.
     pub keyframe_reuses: usize,
     /// Times a stored keyframe lost track right after the tracker returned to it.
     pub keyframe_reuse_failures: usize,
+    /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
+    pub spot_turn_keyframes: usize,
+    /// Stored keyframes that failed their probation where the keyframe left was out of view
+    /// (`[reuse] return_min_overlap`): a new keyframe was started instead of going back.
+    pub returns_out_of_view: usize,
     /// Frames whose velocity was set to zero (the vehicle at rest).
     pub zero_velocity_updates: usize,
     /// Keyframes stored for returning to them.
@@ -782,14 +817,19 @@ impl Odometry {
                     );
                 }
                 let r = &self.cfg.reuse;
-                if self.reusing
+                // The stored keyframe does not fit after all (occlusion, a different exposure, a
+                // bad map): back to the keyframe left — or, if that one is out of view, a new
+                // keyframe from here (`return_min_overlap`).
+                let failed_probation = self.reusing
                     && self.reuse_frames <= r.probation_frames
                     && (result.flag == Some(FlagReason::FewInliers)
-                        || result.inlier_ratio < r.probation_min_inlier_ratio)
-                {
-                    // The stored keyframe does not fit after all (occlusion, a different
-                    // exposure, a bad map): back to the keyframe left.
-                    self.return_from_stored_keyframe();
+                        || result.inlier_ratio < r.probation_min_inlier_ratio);
+                let stay = failed_probation && !self.return_from_stored_keyframe();
+                if stay {
+                    result.wants_keyframe = true;
+                }
+                if failed_probation && !stay {
+                    // (Tracked again against the keyframe gone back to from the next frame on.)
                 } else if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
                     self.phase = Phase::Lost;
                     self.resume = self
@@ -842,6 +882,7 @@ impl Odometry {
                     let history: Vec<MapFrame> = self.history.iter().cloned().collect();
                     let propagate = self.cfg.bootstrap.propagate_maps;
                     self.start_keyframe(frame, history, propagate);
+                    self.install_spot_turn_keyframe(t, &image);
                 } else if result.flag.is_none() && (!self.reusing || self.pending_kf.is_some()) {
                     // (While a stored keyframe is tracked, the mapper's keyframe is the one left
                     // behind until a new one is started: frames corrected against the stored
@@ -873,6 +914,13 @@ impl Odometry {
                     && self.resume_tracking(s, reusing)
                 {
                     self.stats.resumes += 1;
+                } else if self.cfg.bootstrap.relocalise && self.switch_to_stored_keyframe() {
+                    // Tracked from the next frame on against a stored keyframe covering the
+                    // IMU-predicted view, on probation (no keyframe left to go back to: a failed
+                    // probation is a loss again).
+                    self.phase = Phase::Tracking;
+                    self.consecutive_flagged = 0;
+                    self.stats.relocalisations += 1;
                 } else {
                     self.reset_window();
                     self.start_keyframe(frame.clone(), Vec::new(), false);
