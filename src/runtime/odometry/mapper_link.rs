@@ -228,12 +228,7 @@ impl Odometry {
         // changes, whatever their depth. Such a keyframe is installed at once: waiting for
         // forward views adds no parallax in a turn on the spot.
         let b = &self.cfg.bootstrap;
-        // Turned on the spot: the new keyframe is barely displaced from the one tracked.
-        let on_the_spot = self.tracker.keyframe().is_some_and(|k| {
-            let new_pose = self.mapper_from_world.inverse() * s.map.t_world_cam;
-            let d = (new_pose.translation.vector - k.t_world_cam.translation.vector).norm();
-            d < b.fill_max_baseline_ratio * k.median_depth_m
-        });
+        let on_the_spot = self.on_the_spot(&(self.mapper_from_world.inverse() * s.map.t_world_cam));
         let pyramid = || Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
         let fill = if self.phase == Phase::Tracking
             && is_new
@@ -350,9 +345,7 @@ impl Odometry {
             return;
         };
         let t_world_cam = self.tracker.t_world_cam();
-        let baseline_m =
-            (t_world_cam.translation.vector - old.t_world_cam.translation.vector).norm();
-        if baseline_m.is_nan() || baseline_m >= b.fill_max_baseline_ratio * old.median_depth_m {
+        if !self.on_the_spot(&t_world_cam) {
             return;
         }
         let points = moved_map_points(
@@ -397,6 +390,15 @@ impl Odometry {
         };
         self.stats.spot_turn_keyframes += 1;
         self.install_keyframe(kf, &s, true, true, false);
+    }
+
+    /// Turned on the spot: a camera at `t_world_cam` (tracker's world) is barely displaced from
+    /// the keyframe tracked (`fill_max_baseline_ratio` of its median depth).
+    fn on_the_spot(&self, t_world_cam: &Isometry3<f64>) -> bool {
+        self.tracker.keyframe().is_some_and(|k| {
+            let d = (t_world_cam.translation.vector - k.t_world_cam.translation.vector).norm();
+            d < self.cfg.bootstrap.fill_max_baseline_ratio * k.median_depth_m
+        })
     }
 
     /// Makes `kf` (of snapshot `s`) the keyframe tracked against: a new one (`is_new`) or a refresh
