@@ -43,6 +43,14 @@ pub struct TrackerConfig {
     pub affine_gain_prior_std: f64,
     /// Prior standard deviation of the brightness offset, gray levels.
     pub affine_offset_prior_std_gray: f64,
+    /// A frame whose affine log-gain relative to the keyframe is below −this asks for another
+    /// keyframe (0 = never): the brightness model is collapsing onto the flat-image solution
+    /// (gain near 0, offset near the mean grey) that fits a frame misaligned with the keyframe as
+    /// well as an aligned one. Over the rendered flights the true exposure ratio stays within
+    /// e^±0.3 (`cam0/exposure.csv`); frames tracked on against such a keyframe walked to e^-2 …
+    /// e^-6.5 and the flights that did so for long diverged (README *The brightness model
+    /// collapsed*).
+    pub collapsed_log_gain: f64,
     /// A frame is flagged if fewer than this fraction of the keyframe's level-0 points are inliers.
     pub min_inlier_ratio: f64,
     /// A frame is flagged if the IMU residual's squared Mahalanobis norm exceeds this (15 dof).
@@ -92,6 +100,7 @@ impl Default for TrackerConfig {
             border_px: 2.0,
             affine_gain_prior_std: 0.3,
             affine_offset_prior_std_gray: 30.0,
+            collapsed_log_gain: 1.0,
             min_inlier_ratio: 0.25,
             max_imu_chi2: 1000.0,
             min_textured_fraction: 0.01,

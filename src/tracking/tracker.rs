@@ -345,6 +345,13 @@ impl Tracker {
             || baseline > max_baseline_ratio
             || t_kc.rotation.angle() > max_rotation_rad
             || res.flag == Some(FlagReason::FewInliers)
+            || self.brightness_collapsed(res)
+    }
+
+    /// `collapsed_log_gain`: the frame's brightness relative to the keyframe is collapsing.
+    pub fn brightness_collapsed(&self, res: &TrackResult) -> bool {
+        let g = self.cfg.collapsed_log_gain;
+        g > 0.0 && res.flag.is_none() && res.log_gain < -g
     }
 
     /// Coarse-to-fine Gauss-Newton with step control; `None` if the solution is rejected
@@ -715,7 +722,82 @@ mod tests {
     use crate::geometry::boxplus_se3;
     use crate::tracking::keyframe::{DepthPoint, Keyframe};
     use crate::tracking::photometric::accumulate;
-    use nalgebra::{Translation3, UnitQuaternion, Vector6};
+    use nalgebra::{Translation3, UnitQuaternion, Vector3, Vector6};
+
+    /// `collapsed_log_gain`: a solution whose gain relative to the keyframe has fallen below
+    /// e^-1 asks for another keyframe (and the odometry leaves a stored keyframe for it); a flagged
+    /// frame or the option off does not.
+    #[test]
+    fn a_collapsing_brightness_asks_for_another_keyframe() {
+        let cam = CameraModel::euroc_cam0();
+        let state = FrameState {
+            nav: crate::imu::NavState {
+                t: TimeNs(0),
+                r_world_body: UnitQuaternion::identity(),
+                p_world_m: Vector3::zeros(),
+                v_world_m_s: Vector3::zeros(),
+            },
+            bias: crate::imu::ImuBias::default(),
+        };
+        let mut tracker = Tracker::new(
+            TrackerConfig::default(),
+            &cam,
+            Isometry3::identity(),
+            ImuNoise::euroc_adis16448(),
+            state,
+            Matrix15::identity(),
+        );
+        let img = Image::from_fn(cam.width, cam.height, |x, y| {
+            120.0 + 60.0 * ((x as f32) * 0.09).sin() * ((y as f32) * 0.06).cos()
+        });
+        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        pyr.fill_from_f32(&img);
+        let points: Vec<DepthPoint> = (40..440)
+            .step_by(20)
+            .flat_map(|v| (40..720).step_by(20).map(move |u| (u, v)))
+            .map(|(u, v)| DepthPoint {
+                u_px: u as f32,
+                v_px: v as f32,
+                inv_depth_m_inv: 0.5,
+            })
+            .collect();
+        tracker.set_keyframe(Keyframe::new(
+            1,
+            TimeNs(0),
+            &pyr,
+            &cam,
+            Isometry3::identity(),
+            &points,
+            tracker.config(),
+        ));
+        // At the keyframe, fully in view, well tracked: no new keyframe…
+        let mut res = tracker.untracked_result(TimeNs(50_000_000));
+        res.overlap = 1.0;
+        res.inlier_ratio = 0.9;
+        res.log_gain = -0.5;
+        assert!(!tracker.brightness_collapsed(&res));
+        assert!(!tracker.wants_keyframe(&res, 1.0, 1.0));
+        // …unless the gain collapses (e^-1.2 with everything else as good).
+        res.log_gain = -1.2;
+        assert!(tracker.brightness_collapsed(&res));
+        assert!(tracker.wants_keyframe(&res, 1.0, 1.0));
+        // A flagged frame's brightness is not a solution.
+        res.flag = Some(FlagReason::ImuInconsistent);
+        assert!(!tracker.brightness_collapsed(&res));
+        res.flag = None;
+        // Off.
+        let mut cfg = tracker.config().clone();
+        cfg.collapsed_log_gain = 0.0;
+        let off = Tracker::new(
+            cfg,
+            &cam,
+            Isometry3::identity(),
+            ImuNoise::euroc_adis16448(),
+            state,
+            Matrix15::identity(),
+        );
+        assert!(!off.brightness_collapsed(&res));
+    }
 
     /// The photometric Jacobian w.r.t. the body increment, `J_ε Ad(T_kb)`, against numeric
     /// differentiation of the forward residual `I_j(π(T_ck(x ⊞ δ) p)) − I_i(u)` at the solution

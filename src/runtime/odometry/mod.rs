@@ -820,10 +820,12 @@ impl Odometry {
                 // The stored keyframe does not fit after all (occlusion, a different exposure, a
                 // bad map): back to the keyframe left — or, if that one is out of view, a new
                 // keyframe from here (`return_min_overlap`).
+                // (A stored keyframe whose brightness collapses does not fit either, at any time.)
                 let failed_probation = self.reusing
-                    && self.reuse_frames <= r.probation_frames
-                    && (result.flag == Some(FlagReason::FewInliers)
-                        || result.inlier_ratio < r.probation_min_inlier_ratio);
+                    && ((self.reuse_frames <= r.probation_frames
+                        && (result.flag == Some(FlagReason::FewInliers)
+                            || result.inlier_ratio < r.probation_min_inlier_ratio))
+                        || self.tracker.brightness_collapsed(&result));
                 let stay = failed_probation && !self.return_from_stored_keyframe();
                 if stay {
                     result.wants_keyframe = true;
