@@ -786,17 +786,9 @@ mod tests {
         assert!(!tracker.brightness_collapsed(&res));
         res.flag = None;
         // Off.
-        let mut cfg = tracker.config().clone();
-        cfg.collapsed_log_gain = 0.0;
-        let off = Tracker::new(
-            cfg,
-            &cam,
-            Isometry3::identity(),
-            ImuNoise::euroc_adis16448(),
-            state,
-            Matrix15::identity(),
-        );
-        assert!(!off.brightness_collapsed(&res));
+        tracker.cfg.collapsed_log_gain = 0.0;
+        assert!(!tracker.brightness_collapsed(&res));
+        assert!(!tracker.wants_keyframe(&res, 1.0, 1.0));
     }
 
     /// The photometric Jacobian w.r.t. the body increment, `J_ε Ad(T_kb)`, against numeric

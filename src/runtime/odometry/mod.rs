@@ -817,20 +817,20 @@ impl Odometry {
                     );
                 }
                 let r = &self.cfg.reuse;
-                // The stored keyframe does not fit after all (occlusion, a different exposure, a
-                // bad map): back to the keyframe left — or, if that one is out of view, a new
+                // The stored keyframe does not fit after all — it loses its inliers on probation
+                // (occlusion, a different exposure, a bad map) or its brightness collapses at any
+                // time: back to the keyframe left — or, if that one is out of view, a new
                 // keyframe from here (`return_min_overlap`).
-                // (A stored keyframe whose brightness collapses does not fit either, at any time.)
-                let failed_probation = self.reusing
-                    && ((self.reuse_frames <= r.probation_frames
-                        && (result.flag == Some(FlagReason::FewInliers)
-                            || result.inlier_ratio < r.probation_min_inlier_ratio))
-                        || self.tracker.brightness_collapsed(&result));
-                let stay = failed_probation && !self.return_from_stored_keyframe();
+                let failed_probation = self.reuse_frames <= r.probation_frames
+                    && (result.flag == Some(FlagReason::FewInliers)
+                        || result.inlier_ratio < r.probation_min_inlier_ratio);
+                let stored_unfit = self.reusing
+                    && (failed_probation || self.tracker.brightness_collapsed(&result));
+                let stay = stored_unfit && !self.return_from_stored_keyframe();
                 if stay {
                     result.wants_keyframe = true;
                 }
-                if failed_probation && !stay {
+                if stored_unfit && !stay {
                     // (Tracked again against the keyframe gone back to from the next frame on.)
                 } else if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
                     self.phase = Phase::Lost;
