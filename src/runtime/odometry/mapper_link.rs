@@ -208,6 +208,26 @@ impl Odometry {
         }
     }
 
+    /// Where new keyframe `id` stands with its adjustment (`[keyframe_bundle]`).
+    fn adjustment_views(&self, id: u32) -> AdjustmentViews {
+        let adjusted = self.cfg.keyframe_bundle.enabled
+            && self.refiner.is_some()
+            && self.kf_record.as_ref().is_some_and(|r| r.id == id);
+        if !adjusted {
+            AdjustmentViews::NotAdjusted
+        } else if self.keyframe_adjustable(id) {
+            AdjustmentViews::Enough
+        } else {
+            AdjustmentViews::Awaited
+        }
+    }
+
+    /// Keyframe adjustments come back frames after they are sent: in real time, or offline with
+    /// `[keyframe_bundle] lag_frames` (which emulates it).
+    fn adjustments_late(&self) -> bool {
+        self.cfg.realtime || self.cfg.keyframe_bundle.lag_frames > 0
+    }
+
     pub(super) fn apply_snapshot(&mut self, s: &MapSnapshot) {
         let is_new = self.pending_kf == Some(s.keyframe_id);
         let is_refresh = self.pending_kf.is_none() && self.tracking_kf == Some(s.keyframe_id);
@@ -269,10 +289,10 @@ impl Odometry {
                     && (fill.is_some()
                         || new_keyframe_ready(
                             &self.cfg.bootstrap,
-                            self.cfg.realtime,
+                            (self.cfg.realtime, self.adjustments_late()),
                             self.last_inlier_ratio,
                             s.forward_views,
-                            self.keyframe_adjustable(s.keyframe_id),
+                            self.adjustment_views(s.keyframe_id),
                         ))
             }
             Phase::Tracking => {
@@ -463,20 +483,37 @@ impl Odometry {
     }
 }
 
+/// Where a new keyframe stands with its adjustment (`[keyframe_bundle]`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum AdjustmentViews {
+    /// It will not be adjusted (the adjustment is off, or its tracked frames are not recorded).
+    NotAdjusted,
+    /// Fewer frames have been tracked since it than its adjustment needs (`min_views`).
+    Awaited,
+    /// Enough frames for its adjustment.
+    Enough,
+}
+
 /// Whether a new keyframe's map may be installed (or handed to its adjustment): it has forward
 /// parallax (`min_keyframe_forward_views` views after it in the mapper; in real time also the
 /// frames tracked since it, once its adjustment can use them), or the keyframe tracked meanwhile is
-/// slipping away (`urgent_inlier_ratio`).
+/// slipping away (`urgent_inlier_ratio`; when adjustments come back `late` — in real time, or
+/// offline with `[keyframe_bundle] lag_frames` — and its adjustment still awaits its frames, so
+/// that installed now it would be installed unadjusted: only below
+/// `urgent_unadjusted_inlier_ratio`).
 fn new_keyframe_ready(
     b: &BootstrapConfig,
-    realtime: bool,
+    (realtime, late): (bool, bool),
     inlier_ratio: f64,
     forward_views: usize,
-    adjustable: bool,
+    views: AdjustmentViews,
 ) -> bool {
-    inlier_ratio < b.urgent_inlier_ratio
+    let awaits_adjustment = late && views == AdjustmentViews::Awaited;
+    let slipping = inlier_ratio < b.urgent_inlier_ratio
+        && (!awaits_adjustment || inlier_ratio < b.urgent_unadjusted_inlier_ratio);
+    slipping
         || forward_views >= b.min_keyframe_forward_views
-        || (realtime && adjustable)
+        || (realtime && views == AdjustmentViews::Enough)
 }
 
 /// A map's points as the tracker's keyframe takes them.
@@ -587,32 +624,57 @@ mod tests {
 
     #[test]
     fn a_new_keyframe_waits_for_forward_views_offline_and_for_its_adjustment_views_in_real_time() {
+        use AdjustmentViews::*;
         let b = BootstrapConfig::default();
+        let (offline, realtime) = ((false, false), (true, true));
         let tracked_well = b.urgent_inlier_ratio + 0.1;
         let few = b.min_keyframe_forward_views - 1;
+        let enough = b.min_keyframe_forward_views;
         // Offline: the mapper's forward views, whatever was tracked since.
-        assert!(!new_keyframe_ready(&b, false, tracked_well, few, true));
+        assert!(!new_keyframe_ready(&b, offline, tracked_well, few, Enough));
         assert!(new_keyframe_ready(
             &b,
-            false,
+            offline,
             tracked_well,
-            b.min_keyframe_forward_views,
-            false
+            enough,
+            Awaited
         ));
         // Real time: the tracked frames its adjustment will use stand in for them…
-        assert!(new_keyframe_ready(&b, true, tracked_well, 0, true));
+        assert!(new_keyframe_ready(&b, realtime, tracked_well, 0, Enough));
         // …but not before there are enough of them.
-        assert!(!new_keyframe_ready(&b, true, tracked_well, few, false));
-        // Either way, a keyframe slipping away does not wait.
-        for realtime in [false, true] {
-            assert!(new_keyframe_ready(
-                &b,
-                realtime,
-                b.urgent_inlier_ratio - 0.1,
-                0,
-                false
-            ));
+        assert!(!new_keyframe_ready(
+            &b,
+            realtime,
+            tracked_well,
+            few,
+            Awaited
+        ));
+        // Either way, a keyframe slipping away does not wait if it is not to be adjusted.
+        let slipping = b.urgent_inlier_ratio - 0.05;
+        for mode in [offline, realtime] {
+            assert!(new_keyframe_ready(&b, mode, slipping, 0, NotAdjusted));
         }
+    }
+
+    #[test]
+    fn with_late_adjustments_a_new_keyframe_waits_for_their_frames_unless_nearly_lost() {
+        use AdjustmentViews::*;
+        let b = BootstrapConfig::default();
+        assert!(b.urgent_unadjusted_inlier_ratio < b.urgent_inlier_ratio);
+        let slipping = 0.5 * (b.urgent_inlier_ratio + b.urgent_unadjusted_inlier_ratio);
+        let nearly_lost = b.urgent_unadjusted_inlier_ratio - 0.05;
+        // Real time, and offline with the adjustments emulated late (`lag_frames`).
+        for late in [(true, true), (false, true)] {
+            // Slipping, but installed now it would be installed unadjusted: it waits…
+            assert!(!new_keyframe_ready(&b, late, slipping, 0, Awaited));
+            // …unless the keyframe tracked is nearly lost…
+            assert!(new_keyframe_ready(&b, late, nearly_lost, 0, Awaited));
+            // …or it is not to be adjusted, or can be adjusted now.
+            assert!(new_keyframe_ready(&b, late, slipping, 0, NotAdjusted));
+            assert!(new_keyframe_ready(&b, late, slipping, 0, Enough));
+        }
+        // With adjustments at once (offline by default) the first sign of slipping installs.
+        assert!(new_keyframe_ready(&b, (false, false), slipping, 0, Awaited));
     }
 
     /// A turn on the spot's keyframe made by the tracker: the tracked map's points moved into

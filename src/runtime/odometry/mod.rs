@@ -97,8 +97,21 @@ pub struct BootstrapConfig {
     /// started stand in for them once there are enough for its adjustment
     /// (`[keyframe_bundle] min_views`): the adjustment triangulates it over those frames.
     pub min_keyframe_forward_views: usize,
-    /// …unless fewer than this fraction of the current keyframe's points are still inliers.
+    /// …unless fewer than this fraction of the current keyframe's points are still inliers…
     pub urgent_inlier_ratio: f64,
+    /// …and, when adjustments come back late (real time, or `[keyframe_bundle] lag_frames`
+    /// emulating it), while the new keyframe's adjustment still lacks the frames it needs
+    /// (`min_views` tracked since the keyframe was started), unless fewer than this fraction
+    /// are. Between the two the new keyframe waits for those frames: installed at
+    /// the first sign of slipping, with the mapper behind and unadjusted, its map keeps ~55 %
+    /// inliers, the next keyframe is then needed at once and installed the same way, and a fast
+    /// lap went on with no keyframe adjusted for seconds while the maps shrank (demo seed 9 with
+    /// the adjustments 3 frames late, as in real time: none adjusted from 11.7 to 16.8 s, maps
+    /// −9 to −16 %, diverged). With adjustments at once (offline by default) the first sign of
+    /// slipping installs (waiting there too was better on the demo, median 2.7 → 2.0 cm, but
+    /// lost seed 23 and made S-V101 worse: README, *Keyframes installed unadjusted*). A
+    /// value at or above `urgent_inlier_ratio` restores installing at the first sign of slipping.
+    pub urgent_unadjusted_inlier_ratio: f64,
     /// The first keyframe is tracked only once the camera has moved this fraction of the map's
     /// median depth from it (the IMU-measured baseline that makes the first depths metric).
     pub min_init_baseline_ratio: f64,
@@ -227,6 +240,7 @@ impl Default for BootstrapConfig {
             min_keyframe_points: 500,
             min_keyframe_forward_views: 3,
             urgent_inlier_ratio: 0.6,
+            urgent_unadjusted_inlier_ratio: 0.45,
             max_init_s: 3.0,
             min_init_baseline_ratio: 0.1,
             onset_margin_s: 0.3,
