@@ -208,17 +208,19 @@ impl Odometry {
         }
     }
 
-    /// Where new keyframe `id` stands with its adjustment (`[keyframe_bundle]`).
+    /// Where new keyframe `id` stands with its adjustment (`[keyframe_bundle]`): the frames
+    /// tracked since it was started are recorded for it, and are they enough.
     fn adjustment_views(&self, id: u32) -> AdjustmentViews {
-        let adjusted = self.cfg.keyframe_bundle.enabled
-            && self.refiner.is_some()
-            && self.kf_record.as_ref().is_some_and(|r| r.id == id);
-        if !adjusted {
-            AdjustmentViews::NotAdjusted
-        } else if self.keyframe_adjustable(id) {
-            AdjustmentViews::Enough
-        } else {
-            AdjustmentViews::Awaited
+        let kb = &self.cfg.keyframe_bundle;
+        match self.kf_record.as_ref().filter(|r| r.id == id) {
+            Some(r) if kb.enabled && self.refiner.is_some() => {
+                if r.views.len() >= kb.min_views.max(1) {
+                    AdjustmentViews::Enough
+                } else {
+                    AdjustmentViews::Awaited
+                }
+            }
+            _ => AdjustmentViews::NotAdjusted,
         }
     }
 
@@ -332,7 +334,7 @@ impl Odometry {
         let kf = if self.phase == Phase::Tracking
             && is_new
             && !filled
-            && self.keyframe_adjustable(s.keyframe_id)
+            && self.adjustment_views(s.keyframe_id) == AdjustmentViews::Enough
         {
             match self.send_keyframe_adjustment(kf, pyr, s) {
                 Ok(()) => return, // installed when the adjustment is back
@@ -490,7 +492,7 @@ pub(super) enum AdjustmentViews {
     NotAdjusted,
     /// Fewer frames have been tracked since it than its adjustment needs (`min_views`).
     Awaited,
-    /// Enough frames for its adjustment.
+    /// Enough frames for its adjustment: it is adjusted before it is installed.
     Enough,
 }
 

@@ -59,16 +59,6 @@ impl Odometry {
         self.send_refinement(job, kind).is_ok()
     }
 
-    /// Whether new keyframe `id`, ready to be installed, is to be adjusted first
-    /// (`[keyframe_bundle]`): enough frames were tracked since it was started.
-    pub(super) fn keyframe_adjustable(&self, id: u32) -> bool {
-        self.cfg.keyframe_bundle.enabled
-            && self.refiner.is_some()
-            && self.kf_record.as_ref().is_some_and(|r| {
-                r.id == id && r.views.len() >= self.cfg.keyframe_bundle.min_views.max(1)
-            })
-    }
-
     /// Hands new keyframe `kf` (image pyramid `pyramid`, snapshot `s`) to the in-flight keyframe
     /// adjustment with the frames tracked since it was started; it is installed for tracking when
     /// the adjustment is back. `Err(kf)` if it was not sent (thread busy in real time).
