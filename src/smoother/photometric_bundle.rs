@@ -513,6 +513,13 @@ impl PhotometricBundle<'_> {
     /// `k = Σ x² / Σ x`. The prior's curvature is kept, so within a linearisation it still holds
     /// the scale where it is (freeing it altogether, an extra log-scale unknown tried first, let
     /// the accelerometer bias jump 0.6 m/s² and demo seed 1 diverge).
+    ///
+    /// With an even number of neighbours (`smoothness_neighbours`, 8) the target is the *upper*
+    /// of the two middle values: where a point's neighbours straddle two surfaces it is pulled
+    /// toward the nearer one. That is most of the pull toward short maps — from the truth
+    /// (`vidslam dataset adjust-check`, demo seed 1, a keyframe every 40 frames) median inverse
+    /// depth × 1.028 as it is, × 0.980 with the mean of the two middle values — and it is kept
+    /// on purpose: the closed loop leans on it (README, *The upper median holds S-V101's maps*).
     fn smoothness_targets(&self, neighbours: &[Vec<u32>], inv_depth: &[f64]) -> Vec<f64> {
         let mut buf = Vec::new();
         let mut targets: Vec<f64> = neighbours
@@ -525,6 +532,7 @@ impl PhotometricBundle<'_> {
                     return own;
                 }
                 buf.sort_by(f64::total_cmp);
+                // The upper middle value for an even count (see above).
                 buf[buf.len() / 2]
             })
             .collect();
