@@ -26,6 +26,14 @@
 //!   17 cm hop on the noise-free render), so tracker and mapper settle on a wrong map together;
 //!   corrections within `takeoff_min_significance_sigmas` of 1 are not applied.
 //!
+//! A first map started in flight after a loss (`[bootstrap] reinit_velocity_std_m_s` > 0, off by
+//! default) is refined the same way, from the state dead-reckoned through the loss: its velocity is the
+//! start velocity's prior, with that standard deviation instead of the rest's. Such a prior holds
+//! the scale only loosely, so the smoothness prior's targets are made scale-neutral there
+//! ([`crate::smoother::photometric_bundle::BundleConfig::smoothness_scale_neutral`]): without, the
+//! passes shortened the covered-lens rebuilds of demo seeds 1–8 by 5–12 % each (README, *A first
+//! map started in flight*).
+//!
 //! A pass (0.8 s on the demo's 12 views and 3000 points) runs on the refinement thread
 //! ([`super::refinement_worker`]) while the odometry keeps dead-reckoning the frames; when it is
 //! back, the frames dead-reckoned meanwhile are predicted again from its refined last state.
@@ -40,14 +48,17 @@ use crate::smoother::photometric_bundle::{BundleConfig, BundleView, PhotometricB
 use crate::tracking::{Keyframe, Tracker, TrackerConfig};
 use nalgebra::Isometry3;
 
-/// The take-off from a static start, kept until its first map is installed.
+/// The take-off from a static start — or a first map started in flight, after a loss — kept until
+/// its first map is installed.
 #[derive(Clone, Debug)]
 pub struct TakeoffRecord {
-    /// The rest state the IMU was integrated from (zero velocity).
+    /// The state the IMU is integrated from: at rest (zero velocity) for a take-off; in flight,
+    /// the state dead-reckoned through the loss.
     pub rest: FrameState,
-    /// Covariance of the rest state.
+    /// Covariance of `rest`.
     pub rest_cov: Matrix15,
-    /// The first keyframe (the last frame at rest).
+    /// The first keyframe (the last frame at rest, or the frame the first map is started at in
+    /// flight).
     pub keyframe: MapFrame,
     /// Id of the mapper's keyframe started at `keyframe` (changes at every pass).
     pub keyframe_id: u32,
@@ -55,6 +66,11 @@ pub struct TakeoffRecord {
     pub frames: Vec<MapFrame>,
     /// Refinement passes done.
     pub passes: u32,
+    /// Prior standard deviation of the start state's velocity, m/s, around zero for a take-off
+    /// from rest, around `rest`'s own velocity for a first map started in flight (after a loss).
+    pub velocity_std_m_s: f64,
+    /// A first map started in flight: the start velocity's prior is `rest`'s, not zero.
+    pub in_flight: bool,
 }
 
 /// What a refinement pass produced.
@@ -257,9 +273,12 @@ pub fn bundle_adjust_takeoff(
         return None;
     }
     let host = host_points(kf, &host_pyr, rig.tracking.gradient_weight_gray_px);
-    // A take-off from rest: the start velocity's prior is zero.
+    // A take-off from rest: the start velocity's prior is zero (in flight: the velocity
+    // dead-reckoned through the loss).
     let mut start = rest;
-    start.nav.v_world_m_s = nalgebra::Vector3::zeros();
+    if !rec.in_flight {
+        start.nav.v_world_m_s = nalgebra::Vector3::zeros();
+    }
     let problem = PhotometricBundle {
         t_world_host_cam: kf.t_world_cam,
         t_body_cam: rig.t_body_cam,

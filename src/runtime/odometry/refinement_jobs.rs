@@ -33,7 +33,7 @@ impl Odometry {
                 t_body_cam: self.rig.t_body_cam,
                 noise: self.rig.noise,
                 prior: AlignmentPrior {
-                    velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                    velocity_std_m_s: tk.velocity_std_m_s,
                     accel_std_m_s2: b.takeoff_accel_std_m_s2,
                     position_std_m: b.takeoff_position_std_m,
                 },
@@ -44,7 +44,9 @@ impl Odometry {
             bundle: (b.takeoff_refinement == TakeoffRefinement::BundleAdjustment).then(|| {
                 BundleConfig {
                     iterations_per_level: b.takeoff_bundle_iterations,
-                    start_velocity_std_m_s: b.takeoff_velocity_std_m_s,
+                    start_velocity_std_m_s: tk.velocity_std_m_s,
+                    // In flight the velocity prior holds the scale only loosely (`super::takeoff`).
+                    smoothness_scale_neutral: tk.in_flight,
                     accel_bias_std_m_s2: b.takeoff_accel_std_m_s2,
                     smoothness_rel_std: b.takeoff_bundle_smoothness_rel_std,
                     ..BundleConfig::default()
