@@ -283,7 +283,7 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     );
     assert_eq!(in_flight.len(), 2, "{:?}", rebuilt.odometry.takeoff_scales);
     // 0.3 s of dead reckoning at the right velocity gives the map its scale: the refinement
-    // must not move it (with the smoothness prior's pull toward short maps it took 5–12 % a pass).
+    // must not move it (with the smoothness prior's pull toward short maps it took 8–9 % a pass).
     assert!(
         in_flight.iter().all(|s| (s - 1.0).abs() < 0.03),
         "{in_flight:?}"

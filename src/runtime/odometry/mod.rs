@@ -1114,12 +1114,14 @@ impl Odometry {
     /// The record of a first map started in flight at `frame` (after a loss, or restarted for
     /// lack of structure), refined like a take-off ([`super::takeoff`]) from the tracker's state
     /// at `frame` — dead-reckoned through the loss — with `[bootstrap] reinit_velocity_std_m_s`
-    /// on its velocity. `None` if that is 0 (or the take-off is not refined either).
+    /// on its velocity. `None` if that is 0, if the take-off is not refined by bundle adjustment
+    /// (the alignment was never measured in flight), or if the tracker's state is not at `frame`.
     fn in_flight_takeoff(&self, frame: &MapFrame) -> Option<TakeoffRecord> {
         let b = &self.cfg.bootstrap;
         let start = *self.tracker.state();
         if b.refine_takeoff_passes == 0
             || b.reinit_velocity_std_m_s <= 0.0
+            || b.takeoff_refinement != TakeoffRefinement::BundleAdjustment
             || start.nav.t != frame.t
         {
             return None;
