@@ -67,11 +67,31 @@ pub struct TakeoffRecord {
     pub frames: Vec<MapFrame>,
     /// Refinement passes done.
     pub passes: u32,
-    /// Prior standard deviation of the start state's velocity, m/s, around zero for a take-off
-    /// from rest, around `rest`'s own velocity for a first map started in flight (after a loss).
-    pub velocity_std_m_s: f64,
-    /// A first map started in flight: the start velocity's prior is `rest`'s, not zero.
+    /// A first map started in flight: the start velocity's prior is `rest`'s, not zero, with
+    /// `[bootstrap] reinit_velocity_std_m_s` instead of `takeoff_velocity_std_m_s`.
     pub in_flight: bool,
+}
+
+impl TakeoffRecord {
+    /// The record of a first map about to be started as mapper keyframe `keyframe_id` at
+    /// `keyframe`, from state `rest` with covariance `rest_cov`; no frames or passes yet.
+    pub fn new(
+        rest: FrameState,
+        rest_cov: Matrix15,
+        keyframe: MapFrame,
+        keyframe_id: u32,
+        in_flight: bool,
+    ) -> Self {
+        TakeoffRecord {
+            rest,
+            rest_cov,
+            keyframe,
+            keyframe_id,
+            frames: Vec::new(),
+            passes: 0,
+            in_flight,
+        }
+    }
 }
 
 /// What a refinement pass produced.

@@ -772,17 +772,8 @@ impl Odometry {
                     x.nav.t = kf.t;
                     let cov = *self.tracker.covariance();
                     self.window.reset(self.next_kf_id, x, &cov);
-                    self.takeoff =
-                        (self.cfg.bootstrap.refine_takeoff_passes > 0).then(|| TakeoffRecord {
-                            rest,
-                            rest_cov: cov,
-                            keyframe: kf.clone(),
-                            keyframe_id: self.next_kf_id,
-                            frames: Vec::new(),
-                            passes: 0,
-                            velocity_std_m_s: self.cfg.bootstrap.takeoff_velocity_std_m_s,
-                            in_flight: false,
-                        });
+                    self.takeoff = (self.cfg.bootstrap.refine_takeoff_passes > 0)
+                        .then(|| TakeoffRecord::new(rest, cov, kf.clone(), self.next_kf_id, false));
                     self.start_keyframe(kf, Vec::new(), false);
                 }
                 self.static_frames.clear();
@@ -1126,16 +1117,13 @@ impl Odometry {
         {
             return None;
         }
-        Some(TakeoffRecord {
-            rest: start,
-            rest_cov: *self.tracker.covariance(),
-            keyframe: frame.clone(),
-            keyframe_id: self.next_kf_id,
-            frames: Vec::new(),
-            passes: 0,
-            velocity_std_m_s: b.reinit_velocity_std_m_s,
-            in_flight: true,
-        })
+        Some(TakeoffRecord::new(
+            start,
+            *self.tracker.covariance(),
+            frame.clone(),
+            self.next_kf_id,
+            true,
+        ))
     }
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's

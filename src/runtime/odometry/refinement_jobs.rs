@@ -21,6 +21,11 @@ impl Odometry {
             return false; // done
         }
         let imu = imu_between(self.imu.make_contiguous(), tk.rest.nav.t, None);
+        let velocity_std_m_s = if tk.in_flight {
+            b.reinit_velocity_std_m_s
+        } else {
+            b.takeoff_velocity_std_m_s
+        };
         self.refine_seq += 1;
         let job = RefineJob::Takeoff(Box::new(TakeoffJob {
             seq: self.refine_seq,
@@ -33,7 +38,7 @@ impl Odometry {
                 t_body_cam: self.rig.t_body_cam,
                 noise: self.rig.noise,
                 prior: AlignmentPrior {
-                    velocity_std_m_s: tk.velocity_std_m_s,
+                    velocity_std_m_s,
                     accel_std_m_s2: b.takeoff_accel_std_m_s2,
                     position_std_m: b.takeoff_position_std_m,
                 },
@@ -44,7 +49,7 @@ impl Odometry {
             bundle: (b.takeoff_refinement == TakeoffRefinement::BundleAdjustment).then(|| {
                 BundleConfig {
                     iterations_per_level: b.takeoff_bundle_iterations,
-                    start_velocity_std_m_s: tk.velocity_std_m_s,
+                    start_velocity_std_m_s: velocity_std_m_s,
                     // In flight the velocity prior holds the scale only loosely (`super::takeoff`).
                     smoothness_scale_neutral: tk.in_flight,
                     accel_bias_std_m_s2: b.takeoff_accel_std_m_s2,
