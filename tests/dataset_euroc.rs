@@ -1,5 +1,6 @@
 //! The ASL reader on the real EuRoC V1_01 clip (shared data) and on a written/re-read dataset.
 
+mod scratch;
 use nalgebra::{Isometry3, Vector3};
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{
@@ -54,9 +55,7 @@ fn v101_streams_95_frames_and_29120_imu_samples_in_time_order() {
 }
 
 fn tmpdir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("vidslam-ds-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+    scratch::path(&format!("ds-{name}"))
 }
 
 fn sensors() -> (CameraSensor, ImuSensor) {

@@ -3,9 +3,11 @@
 //! within 0.1 %, ATE and rotation error equal to the injected noise RMS within 5 %).
 
 mod eval_common;
+mod scratch;
 
-use eval_common::{num, perturb, read_json, run_vidslam, scratch_dir};
+use eval_common::{num, perturb, read_json, run_vidslam};
 use nalgebra::{UnitQuaternion, Vector3};
+use scratch::dir as scratch_dir;
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use vidslam::dataset::{StampedPose, Trajectory, TrajectoryFormat, shared_data_or_skip};

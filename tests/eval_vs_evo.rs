@@ -4,9 +4,11 @@
 //! (`.ci/requirements.txt`); without it these tests FAIL rather than skip.
 
 mod eval_common;
+mod scratch;
 
-use eval_common::{num, perturb, read_json, run_vidslam, scratch_dir};
+use eval_common::{num, perturb, read_json, run_vidslam};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use scratch::dir as scratch_dir;
 use std::collections::HashMap;
 use std::ffi::OsStr;
 use std::path::Path;

@@ -4,6 +4,7 @@
 
 #[path = "../drivers/mip/tests/common/fake_gx4.rs"]
 mod fake_gx4;
+mod scratch;
 
 use fake_gx4::{FakeGx4, Script};
 use std::path::Path;
@@ -34,7 +35,7 @@ fn split(bytes: &[u8]) -> (Vec<Vec<u8>>, usize, u64) {
 }
 
 fn temp_file(name: &str) -> std::path::PathBuf {
-    std::env::temp_dir().join(format!("vidslam-imu-record-{}-{name}", std::process::id()))
+    scratch::path(&format!("imu-record-{name}"))
 }
 
 #[test]

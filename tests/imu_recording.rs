@@ -2,6 +2,7 @@
 //! `vidslam imu encode-euroc --csv $VIDSLAM_DATA/euroc/V1_01_easy_micro/mav0/imu0/data.csv
 //! --seconds 5 --out tests/data/euroc_v1_01_easy_gx4_5s.mip`) and the `vidslam imu decode` command.
 
+mod scratch;
 use std::path::{Path, PathBuf};
 use vidslam::cli::imu::decode_file;
 use vidslam::dataset::gx4_recording::{encode_gx4_recording, gx4_packets};
@@ -103,7 +104,7 @@ fn decode_counts_garbage_and_corruption() {
     bytes[82 * 10 + 20] ^= 0x40; // corrupt packet 10
     let mut with_garbage = b"\x75\x65garbage".to_vec();
     with_garbage.extend_from_slice(&bytes);
-    let dir = std::env::temp_dir().join(format!("vidslam-imu-decode-{}", std::process::id()));
+    let dir = scratch::dir("imu-decode");
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("damaged.mip");
     std::fs::write(&path, &with_garbage).unwrap();

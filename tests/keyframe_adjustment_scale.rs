@@ -9,6 +9,7 @@
 //! which the photometric terms do not see and a few tenths of a second of IMU hold only weakly
 //! (README, *The keyframe adjustment's smoothness prior moved the map's scale*).
 
+mod scratch;
 use std::process::Command;
 use vidslam::dataset::AslDataset;
 use vidslam::runtime::Config;
@@ -42,7 +43,7 @@ fn check(ds: &AslDataset, scale_neutral: bool) -> Vec<AdjustCheckRow> {
 
 #[test]
 fn a_free_depth_adjustment_started_at_the_truth_keeps_the_maps_scale() {
-    let dir = std::env::temp_dir().join(format!("vidslam-kf-scale-{}", std::process::id()));
+    let dir = scratch::dir("kf-scale");
     ideal_segment(&dir);
     let ds = AslDataset::open(&dir).unwrap();
     let neutral = check(&ds, true);

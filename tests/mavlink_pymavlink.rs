@@ -6,6 +6,7 @@
 //! pymavlink is a test requirement (`.ci/requirements.txt`, installed by `.ci/run`): without it
 //! these tests fail, they do not skip.
 
+mod scratch;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -64,7 +65,7 @@ fn write_trajectory(dir: &Path) -> PathBuf {
 /// listener's JSON report after asserting both succeeded.
 fn run_pair(name: &str, listener_args: &[&str], play_args: &[&str]) -> serde_json::Value {
     require_pymavlink();
-    let dir = std::env::temp_dir().join(format!("vidslam-mavlink-{name}-{}", std::process::id()));
+    let dir = scratch::dir(&format!("mavlink-{name}"));
     std::fs::create_dir_all(&dir).unwrap();
     let traj = write_trajectory(&dir);
     let script = workspace_root().join("tests/peers/mavlink_listener.py");

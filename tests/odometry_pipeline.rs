@@ -2,6 +2,7 @@
 //! IMU, tracking on semidense maps from the mapping thread, loss (black frames) and recovery with
 //! a counted reset, determinism of two offline replays, and the real EuRoC clip on the pad.
 
+mod scratch;
 use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::eval::{EvalOptions, EvalReport, evaluate};
@@ -15,7 +16,7 @@ use vidslam::tracking::pose_of;
 fn takeoff() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("vidslam-odometry-{}", std::process::id()));
+        let dir = scratch::dir("odometry-takeoff");
         let mut cfg = SimConfig::new(
             dir.clone(),
             TrajectorySource::Builtin("demo".into()),
@@ -44,7 +45,7 @@ fn eval_against_truth(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutpu
 /// A noise-free render of the built-in flight (all of it, or its first `seconds`) in a fresh
 /// directory named after `name`.
 fn simulate_ideal(name: &str, seconds: Option<f64>) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("vidslam-{name}-{}", std::process::id()));
+    let dir = scratch::dir(name);
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::Builtin("demo".into()),

@@ -2,6 +2,7 @@
 //! accelerometer bias against the one the ground truth implies among them), clear errors for a
 //! bad configuration and for a dataset without depth.
 
+mod scratch;
 use std::path::Path;
 use std::process::Command;
 
@@ -37,7 +38,7 @@ fn text(o: &std::process::Output) -> String {
 
 #[test]
 fn replay_writes_trajectory_report_csv_and_plot() {
-    let tmp = std::env::temp_dir().join(format!("vidslam-replay-cli-{}", std::process::id()));
+    let tmp = scratch::dir("replay-cli");
     let data = tmp.join("data");
     let o = vidslam(&[
         "sim",
@@ -137,7 +138,7 @@ fn config_prints_every_table_and_checks_files() {
     ] {
         assert!(t.contains(table), "missing {table} in\n{t}");
     }
-    let bad = std::env::temp_dir().join(format!("vidslam-config-{}.toml", std::process::id()));
+    let bad = scratch::path("bad-config.toml");
     std::fs::write(&bad, "[bootstrap]\nmin_initial_points = -3\n").unwrap();
     let o = vidslam(&["config", "--config", bad.to_str().unwrap()]);
     let t = text(&o);
@@ -153,7 +154,7 @@ fn config_prints_every_table_and_checks_files() {
 /// summary with one row per seed in OUT/seeds.json.
 #[test]
 fn demo_over_several_seeds_writes_the_distribution() {
-    let out = std::env::temp_dir().join(format!("vidslam-demo-seeds-{}", std::process::id()));
+    let out = scratch::dir("demo-seeds");
     let o = vidslam(&[
         "demo",
         "--seeds",

@@ -1,6 +1,7 @@
 //! `vidslam sim` end to end through the binary: output readable by the dataset reader and by
 //! `vidslam dataset info`, deterministic per seed, refuses to overwrite, clear input errors.
 
+mod scratch;
 use std::path::Path;
 use std::process::Command;
 use vidslam::camera::CameraModel;
@@ -33,7 +34,7 @@ fn files_under(root: &Path) -> Vec<std::path::PathBuf> {
 
 #[test]
 fn sim_cli_writes_a_readable_deterministic_dataset() {
-    let tmp = std::env::temp_dir().join(format!("vidslam-sim-cli-{}", std::process::id()));
+    let tmp = scratch::dir("sim-cli");
     std::fs::create_dir_all(&tmp).unwrap();
     let yaml = tmp.join("cam.yaml");
     write_camera_yaml(

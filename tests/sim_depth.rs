@@ -2,6 +2,7 @@
 //! `scene.json`, using the poses of the written ground truth and the camera of the written
 //! `cam0/sensor.yaml` (so the files, not the renderer's internals, are what is checked).
 
+mod scratch;
 use nalgebra::{Point3, Vector2, Vector3};
 use vidslam::camera::CameraModel;
 use vidslam::dataset::AslDataset;
@@ -49,7 +50,7 @@ fn nearest(rects: &[Rect], o: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
 
 #[test]
 fn depth_maps_match_ray_plane_intersection_of_scene_json() {
-    let dir = std::env::temp_dir().join(format!("vidslam-sim-depth-{}", std::process::id()));
+    let dir = scratch::dir("sim-depth");
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::Builtin("demo".into()),

@@ -2,6 +2,7 @@
 //! integrator (`imu::integration::propagate`) reproduces the ground-truth pose over 10 s of the
 //! built-in demo flight (loops and turns) within 1 mm and 0.01°.
 
+mod scratch;
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{AslDataset, GroundTruthState};
 use vidslam::imu::ImuSample;
@@ -20,7 +21,7 @@ fn nav(s: &GroundTruthState) -> NavState {
 
 #[test]
 fn noise_free_imu_integrates_to_the_ground_truth_pose_over_10_s() {
-    let dir = std::env::temp_dir().join(format!("vidslam-sim-imuint-{}", std::process::id()));
+    let dir = scratch::dir("sim-imuint");
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::Builtin("demo".into()),

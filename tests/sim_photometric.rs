@@ -7,6 +7,7 @@
 //! within 5 % (visible, not at a depth edge), and frame k's 3x3 depth neighbourhood is continuous
 //! within 5 % (the source pixel is not a mix of two surfaces).
 
+mod scratch;
 use nalgebra::{Point3, Vector2};
 use vidslam::dataset::AslDataset;
 use vidslam::image::bilinear;
@@ -14,7 +15,7 @@ use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 
 #[test]
 fn warping_with_ground_truth_depth_and_pose_reproduces_the_next_frame() {
-    let dir = std::env::temp_dir().join(format!("vidslam-sim-photo-{}", std::process::id()));
+    let dir = scratch::dir("sim-photo");
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::Builtin("demo".into()),
@@ -102,7 +103,7 @@ fn warping_with_ground_truth_depth_and_pose_reproduces_the_next_frame() {
 /// `camera::vignette`.
 #[test]
 fn realistic_renders_carry_their_vignetting_calibration() {
-    let dir = std::env::temp_dir().join(format!("vidslam-sim-vignette-{}", std::process::id()));
+    let dir = scratch::dir("sim-vignette");
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::Builtin("demo".into()),

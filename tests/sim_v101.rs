@@ -1,6 +1,7 @@
 //! "S-V101": the simulator on the shared EuRoC V1_01 files — the real IMU passed through and images
 //! rendered along the real ground-truth path. Skips with a message when the shared data is absent.
 
+mod scratch;
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
@@ -25,7 +26,7 @@ fn s_v101_uses_the_real_imu_byte_identically_and_frames_lie_inside_both_spans() 
     let Some(mav0) = v101() else { return };
     let gt_in = mav0.join("state_groundtruth_estimate0/data.csv");
     let imu_in = mav0.join("imu0/data.csv");
-    let dir = std::env::temp_dir().join(format!("vidslam-sim-v101-{}", std::process::id()));
+    let dir = scratch::dir("sim-v101");
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::File(gt_in.clone()),

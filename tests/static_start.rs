@@ -3,6 +3,7 @@
 //! ground truth, and reports the take-off close to where the ground truth starts moving.
 //! Run with `--nocapture` for the figures.
 
+mod scratch;
 use nalgebra::{UnitQuaternion, Vector3};
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{AslDataset, GroundTruth, read_groundtruth, read_imu_csv};
@@ -278,7 +279,7 @@ fn euroc_v101_static_start_attitude_bias_and_take_off() {
 
 #[test]
 fn simulated_demo_static_start_and_take_off() {
-    let dir = std::env::temp_dir().join(format!("vidslam-static-start-{}", std::process::id()));
+    let dir = scratch::dir("static-start");
     let mut cfg = SimConfig::new(
         dir.clone(),
         TrajectorySource::Builtin("demo".into()),

@@ -3,6 +3,7 @@
 //! black frame flagged as untextured (never a NaN), and a short end-to-end replay that is deterministic and
 //! accurate, with vision visibly better than the IMU alone.
 
+mod scratch;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, FrameRecord, GroundTruth};
@@ -20,7 +21,7 @@ use vidslam::tracking::{
 fn dataset() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("vidslam-tracking-sim-{}", std::process::id()));
+        let dir = scratch::dir("tracking-sim");
         let mut cfg = SimConfig::new(
             dir.clone(),
             TrajectorySource::Builtin("demo".into()),

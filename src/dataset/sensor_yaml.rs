@@ -393,15 +393,15 @@ pub fn write_imu_yaml(path: &Path, imu: &ImuSensor, comment: &str) -> std::io::R
 mod tests {
     use super::*;
 
-    fn tmp(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("vidslam-yaml-{}-{name}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
-        d
+    /// A scratch directory deleted when the returned guard drops.
+    fn tmp() -> tempfile::TempDir {
+        tempfile::tempdir().unwrap()
     }
 
     #[test]
     fn camera_and_imu_yaml_round_trip() {
-        let d = tmp("rt");
+        let tmp = tmp();
+        let d = tmp.path();
         let cam = CameraSensor {
             model: CameraModel::euroc_cam0(),
             t_body_cam: Isometry3::new(
@@ -421,7 +421,6 @@ mod tests {
         };
         write_imu_yaml(&d.join("imu.yaml"), &imu, "test").unwrap();
         assert_eq!(read_imu_yaml(&d.join("imu.yaml")).unwrap(), imu);
-        std::fs::remove_dir_all(&d).ok();
     }
 
     #[test]
@@ -431,7 +430,8 @@ mod tests {
             radius_px: 447.25,
             coefficients: [-0.35, 0.01, -0.002],
         };
-        let p = tmp("vignette").join("vignette.yaml");
+        let tmp = tmp();
+        let p = tmp.path().join("vignette.yaml");
         write_vignette_yaml(&p, &v, "test").unwrap();
         assert_eq!(read_vignette_yaml(&p, (752, 480)).unwrap(), v);
         std::fs::write(&p, "vignette_model: radial-polynomial\ncentre_px: [1, 2]\nradius_px: 100\ncoefficients: [-0.99, 0, 0]\n").unwrap();
@@ -447,8 +447,8 @@ mod tests {
 
     #[test]
     fn errors_name_file_and_key() {
-        let d = tmp("err");
-        let p = d.join("cam.yaml");
+        let tmp = tmp();
+        let p = tmp.path().join("cam.yaml");
         std::fs::write(
             &p,
             "%YAML:1.0\nresolution: [752, 480]\nintrinsics: [1, 2, 3]\n",
@@ -473,6 +473,5 @@ mod tests {
         std::fs::write(&p, "%YAML:1.0\ngyroscope_noise_density: abc\n").unwrap();
         let e = read_imu_yaml(&p).unwrap_err().to_string();
         assert!(e.contains("'gyroscope_noise_density'"), "{e}");
-        std::fs::remove_dir_all(&d).ok();
     }
 }

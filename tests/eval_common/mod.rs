@@ -4,7 +4,7 @@
 #![allow(dead_code)] // each test crate uses a subset
 
 use nalgebra::{UnitQuaternion, Vector3};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 use vidslam::dataset::{StampedPose, Trajectory};
 use vidslam::eval::Sim3;
@@ -85,14 +85,6 @@ pub fn perturb(
         rot_noise_rms_deg: (sum_a2 / n).sqrt().to_degrees(),
     };
     (Trajectory::new(poses), injected)
-}
-
-/// A fresh scratch directory for one test.
-pub fn scratch_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("vidslam-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 /// Runs the `vidslam` binary; panics with its stderr if it fails.
