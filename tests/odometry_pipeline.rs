@@ -156,6 +156,26 @@ fn refinements_applied_frames_late_keep_replays_identical() {
         jumps.iter().all(|j| j.is_finite() && *j >= 0.0),
         "{jumps:?}"
     );
+    // The keyframe latencies report the lags: each new keyframe's first map exactly
+    // `offline_lag_frames` after the frame that started it, and each adjusted one installed at
+    // least the keyframe lag after that.
+    let (map_lat, install_lat) = (
+        &a.odometry.keyframe_map_latency_frames,
+        &a.odometry.keyframe_install_latency_frames,
+    );
+    assert!(!map_lat.is_empty() && !install_lat.is_empty());
+    assert!(
+        map_lat
+            .iter()
+            .all(|&n| n == opts.bootstrap.offline_lag_frames),
+        "{map_lat:?}"
+    );
+    assert!(
+        install_lat
+            .iter()
+            .all(|&n| n >= opts.bootstrap.offline_lag_frames + 3),
+        "{install_lat:?}"
+    );
     let (ta, tb) = (trajectory(&a), trajectory(&b));
     assert_eq!(ta.poses.len(), tb.poses.len());
     for (p, q) in ta.poses.iter().zip(&tb.poses) {

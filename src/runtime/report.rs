@@ -107,6 +107,14 @@ pub struct ReplayReport {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub keyframe_bundle_catch_up_frames: usize,
+    /// New keyframes in flight: frames from the one that started a keyframe to its first map
+    /// from the mapper, and to its installation for tracking (median and largest). In real time
+    /// this is the latency the mapper's and the adjustment's speed give (README, *S-V101 in real
+    /// time, and which latency breaks it*); offline the map's is `[bootstrap] offline_lag_frames`.
+    pub keyframe_map_latency_frames_p50: f64,
+    pub keyframe_map_latency_frames_max: f64,
+    pub keyframe_install_latency_frames_p50: f64,
+    pub keyframe_install_latency_frames_max: f64,
     /// Keyframes started in a turn on the spot, tracked with guessed depths while the mapper
     /// triangulated them from the poses tracked so, then adjusted with their depths free once
     /// their views spanned a baseline: the factor each one's depths were scaled by (adjusted /
@@ -166,6 +174,18 @@ impl ReplayReport {
         let imu_scale_pct = |p: f64| (!imu_scale.is_empty()).then(|| percentile(&imu_scale, p));
         let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
         let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
+        let map_lat = sorted(
+            out.odometry
+                .keyframe_map_latency_frames
+                .iter()
+                .map(|&n| n as f64),
+        );
+        let install_lat = sorted(
+            out.odometry
+                .keyframe_install_latency_frames
+                .iter()
+                .map(|&n| n as f64),
+        );
         let kb_change = sorted(
             out.odometry
                 .keyframe_bundle_depth_changes
@@ -273,6 +293,10 @@ impl ReplayReport {
             refinements_dropped: out.odometry.refinements_dropped,
             refinements_discarded: out.odometry.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.odometry.catch_up_frames,
+            keyframe_map_latency_frames_p50: percentile(&map_lat, 50.0),
+            keyframe_map_latency_frames_max: map_lat.last().copied().unwrap_or(0.0),
+            keyframe_install_latency_frames_p50: percentile(&install_lat, 50.0),
+            keyframe_install_latency_frames_max: install_lat.last().copied().unwrap_or(0.0),
             guessed_keyframe_scales: out.odometry.guessed_keyframe_scales.clone(),
             imu_scale_estimates: imu_scale.len(),
             imu_scale_p10: imu_scale_pct(10.0),
@@ -517,6 +541,18 @@ impl ReplayReport {
                 format!(
                     "{} solves, ms p50/max {:.2} / {:.2}",
                     self.window_solves, self.window_ms_p50, self.window_ms_max
+                ),
+            );
+        }
+        if self.keyframe_install_latency_frames_max > 0.0 {
+            row(
+                "keyframe latency",
+                format!(
+                    "frames from start to map p50/max {:.0} / {:.0}, to installed {:.0} / {:.0}",
+                    self.keyframe_map_latency_frames_p50,
+                    self.keyframe_map_latency_frames_max,
+                    self.keyframe_install_latency_frames_p50,
+                    self.keyframe_install_latency_frames_max
                 ),
             );
         }

@@ -117,6 +117,7 @@ impl Odometry {
         self.next_kf_id += 1;
         self.newest_kf = Some(id);
         self.pending_kf = Some(id);
+        self.kf_started = (self.phase == Phase::Tracking).then_some((id, self.frame_number, false));
         self.stats.keyframes += 1;
         let b = &self.cfg.bootstrap;
         let range =
@@ -235,6 +236,13 @@ impl Odometry {
         let is_refresh = self.pending_kf.is_none() && self.tracking_kf == Some(s.keyframe_id);
         if !(is_new || is_refresh) {
             return; // a keyframe that has been superseded already, or left for a stored one
+        }
+        if let Some((id, started, map_seen @ false)) = self.kf_started.as_mut()
+            && *id == s.keyframe_id
+        {
+            *map_seen = true;
+            let latency = self.frame_number - *started;
+            self.stats.keyframe_map_latency_frames.push(latency);
         }
         if self.refining_takeoff(Some(s.keyframe_id))
             || self.adjusting_keyframe() == Some(s.keyframe_id)
@@ -436,6 +444,11 @@ impl Odometry {
         let n = s.map.points.len();
         self.takeoff = None;
         let kf_median_depth_m = kf.median_depth_m;
+        if is_new && let Some((_, started, _)) = self.kf_started.take_if(|(id, ..)| *id == kf.id) {
+            self.stats
+                .keyframe_install_latency_frames
+                .push(self.frame_number - started);
+        }
         // A refresh of the same keyframe keeps the brightness estimate.
         let previous = self.tracker.set_keyframe(kf);
         if is_new {

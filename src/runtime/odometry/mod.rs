@@ -418,6 +418,12 @@ pub struct OdometryStats {
     pub imu_scale: Vec<ScaleSample>,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
+    /// Latency of each new keyframe in flight, frames from the frame that started it: to its
+    /// first map from the mapper, and to its installation for tracking (after its adjustment,
+    /// and the forward views both wait for). Offline the first is `[bootstrap]
+    /// offline_lag_frames`; in real time it is what the mapper's speed gives.
+    pub keyframe_map_latency_frames: Vec<u64>,
+    pub keyframe_install_latency_frames: Vec<u64>,
     /// Images are divided by the rig's vignetting.
     pub vignette_corrected: bool,
     /// Pixels clipped at 255 by the vignetting correction (bright texture in the corners).
@@ -483,6 +489,9 @@ pub struct Odometry {
     /// order; sent before anything else as soon as there is room (views are dropped instead).
     deferred_jobs: VecDeque<MapJob>,
     frame_number: u64,
+    /// The new keyframe awaited in flight: its id, the frame number that started it, and whether
+    /// its first map has arrived (for the latency statistics).
+    kf_started: Option<(u32, u64, bool)>,
     tracking_kf: Option<u32>,
     /// The mapper's map of the tracking keyframe as installed.
     tracking_map: Option<Arc<SemidenseMap>>,
@@ -630,6 +639,7 @@ impl Odometry {
             awaited: VecDeque::new(),
             deferred_jobs: VecDeque::new(),
             frame_number: 0,
+            kf_started: None,
             tracking_kf: None,
             tracking_map: None,
             tracking_kf_filled: false,
