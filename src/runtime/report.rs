@@ -110,7 +110,7 @@ pub struct ReplayReport {
     /// New keyframes in flight: frames from the one that started a keyframe to its first map
     /// from the mapper, and to its installation for tracking (median and largest). In real time
     /// this is the latency the mapper's and the adjustment's speed give (README, *S-V101 in real
-    /// time, and which latency breaks it*); offline the map's is `[bootstrap] offline_lag_frames`.
+    /// time, and its latencies*); offline the map's is `[bootstrap] offline_lag_frames`.
     pub keyframe_map_latency_frames_p50: f64,
     pub keyframe_map_latency_frames_max: f64,
     pub keyframe_install_latency_frames_p50: f64,

@@ -419,8 +419,8 @@ pub struct OdometryStats {
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
-    /// first map from the mapper, and to its installation for tracking (after its adjustment,
-    /// and the forward views both wait for). Offline the first is `[bootstrap]
+    /// first map from the mapper, and to its installation for tracking (which also waits for the
+    /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
     /// offline_lag_frames`; in real time it is what the mapper's speed gives.
     pub keyframe_map_latency_frames: Vec<u64>,
     pub keyframe_install_latency_frames: Vec<u64>,
