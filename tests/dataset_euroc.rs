@@ -1,6 +1,7 @@
 //! The ASL reader on the real EuRoC V1_01 clip (shared data) and on a written/re-read dataset.
 
 mod scratch;
+
 use nalgebra::{Isometry3, Vector3};
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{

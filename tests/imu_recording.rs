@@ -3,6 +3,7 @@
 //! --seconds 5 --out tests/data/euroc_v1_01_easy_gx4_5s.mip`) and the `vidslam imu decode` command.
 
 mod scratch;
+
 use std::path::{Path, PathBuf};
 use vidslam::cli::imu::decode_file;
 use vidslam::dataset::gx4_recording::{encode_gx4_recording, gx4_packets};

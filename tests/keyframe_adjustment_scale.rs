@@ -10,6 +10,7 @@
 //! (README, *The keyframe adjustment's smoothness prior moved the map's scale*).
 
 mod scratch;
+
 use std::process::Command;
 use vidslam::dataset::AslDataset;
 use vidslam::runtime::Config;

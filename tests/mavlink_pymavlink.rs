@@ -7,6 +7,7 @@
 //! these tests fail, they do not skip.
 
 mod scratch;
+
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

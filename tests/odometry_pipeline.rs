@@ -3,6 +3,7 @@
 //! a counted reset, determinism of two offline replays, and the real EuRoC clip on the pad.
 
 mod scratch;
+
 use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::eval::{EvalOptions, EvalReport, evaluate};

@@ -3,6 +3,7 @@
 //! bad configuration and for a dataset without depth.
 
 mod scratch;
+
 use std::path::Path;
 use std::process::Command;
 

@@ -2,6 +2,7 @@
 //! `vidslam dataset info`, deterministic per seed, refuses to overwrite, clear input errors.
 
 mod scratch;
+
 use std::path::Path;
 use std::process::Command;
 use vidslam::camera::CameraModel;

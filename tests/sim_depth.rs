@@ -3,6 +3,7 @@
 //! `cam0/sensor.yaml` (so the files, not the renderer's internals, are what is checked).
 
 mod scratch;
+
 use nalgebra::{Point3, Vector2, Vector3};
 use vidslam::camera::CameraModel;
 use vidslam::dataset::AslDataset;

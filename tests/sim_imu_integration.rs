@@ -3,6 +3,7 @@
 //! built-in demo flight (loops and turns) within 1 mm and 0.01°.
 
 mod scratch;
+
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{AslDataset, GroundTruthState};
 use vidslam::imu::ImuSample;

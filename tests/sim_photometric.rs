@@ -8,6 +8,7 @@
 //! within 5 % (the source pixel is not a mix of two surfaces).
 
 mod scratch;
+
 use nalgebra::{Point3, Vector2};
 use vidslam::dataset::AslDataset;
 use vidslam::image::bilinear;

@@ -2,6 +2,7 @@
 //! rendered along the real ground-truth path. Skips with a message when the shared data is absent.
 
 mod scratch;
+
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};

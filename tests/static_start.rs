@@ -4,6 +4,7 @@
 //! Run with `--nocapture` for the figures.
 
 mod scratch;
+
 use nalgebra::{UnitQuaternion, Vector3};
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{AslDataset, GroundTruth, read_groundtruth, read_imu_csv};

@@ -4,6 +4,7 @@
 //! accurate, with vision visibly better than the IMU alone.
 
 mod scratch;
+
 use nalgebra::{UnitQuaternion, Vector3};
 use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, FrameRecord, GroundTruth};
