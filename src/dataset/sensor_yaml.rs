@@ -393,14 +393,9 @@ pub fn write_imu_yaml(path: &Path, imu: &ImuSensor, comment: &str) -> std::io::R
 mod tests {
     use super::*;
 
-    /// A scratch directory deleted when the returned guard drops.
-    fn tmp() -> tempfile::TempDir {
-        tempfile::tempdir().unwrap()
-    }
-
     #[test]
     fn camera_and_imu_yaml_round_trip() {
-        let tmp = tmp();
+        let tmp = tempfile::tempdir().unwrap();
         let d = tmp.path();
         let cam = CameraSensor {
             model: CameraModel::euroc_cam0(),
@@ -430,7 +425,7 @@ mod tests {
             radius_px: 447.25,
             coefficients: [-0.35, 0.01, -0.002],
         };
-        let tmp = tmp();
+        let tmp = tempfile::tempdir().unwrap();
         let p = tmp.path().join("vignette.yaml");
         write_vignette_yaml(&p, &v, "test").unwrap();
         assert_eq!(read_vignette_yaml(&p, (752, 480)).unwrap(), v);
@@ -447,7 +442,7 @@ mod tests {
 
     #[test]
     fn errors_name_file_and_key() {
-        let tmp = tmp();
+        let tmp = tempfile::tempdir().unwrap();
         let p = tmp.path().join("cam.yaml");
         std::fs::write(
             &p,

@@ -252,8 +252,8 @@ mod tests {
 
     #[test]
     fn tum_and_euroc_round_trip() {
-        let dir = std::env::temp_dir().join(format!("vidslam-traj-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
         let tr = sample();
         for (name, fmt) in [
             ("a.tum", TrajectoryFormat::Tum),
@@ -265,13 +265,12 @@ mod tests {
             assert_eq!(found, fmt);
             assert_close(&tr, &back);
         }
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn parse_errors_name_file_and_line() {
-        let dir = std::env::temp_dir().join(format!("vidslam-traj-err-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
         let path = dir.join("bad.tum");
         std::fs::write(&path, "# header\n1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n").unwrap();
         let msg = Trajectory::read(&path).unwrap_err().to_string();
@@ -288,7 +287,6 @@ mod tests {
         std::fs::write(&path, "1,0,0,0,0.2,0,0,0\n").unwrap();
         let msg = Trajectory::read(&path).unwrap_err().to_string();
         assert!(msg.contains("bad.tum:1") && msg.contains("norm"), "{msg}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -253,8 +253,8 @@ mod tests {
 
     #[test]
     fn writes_a_png_and_refuses_empty_or_unwritable() {
-        let dir = std::env::temp_dir().join(format!("vidslam-plot-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
         let per_pose: Vec<PoseError> = (0..50)
             .map(|i| {
                 let a = i as f64 * 0.1;
@@ -280,6 +280,5 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(msg.contains("no-such-dir"), "{msg}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -167,8 +167,8 @@ mod tests {
 
     #[test]
     fn round_trips_8_and_16_bit() {
-        let dir = std::env::temp_dir().join(format!("vidslam-png-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
         let a = Image::from_fn(7, 3, |x, y| (x * 30 + y) as u8);
         write_png_gray8(&dir.join("a.png"), &a).unwrap();
         assert_eq!(read_png_gray8(&dir.join("a.png")).unwrap(), a);
@@ -181,6 +181,5 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("missing.png"), "{err}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -157,8 +157,8 @@ mod tests {
 
     #[test]
     fn keeps_raw_lines_and_names_bad_rows() {
-        let dir = std::env::temp_dir().join(format!("vidslam-realimu-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
         let p = dir.join("imu.csv");
         let text = "#timestamp [ns],w..\n10,0.1,0.2,0.3,9.8,0.0,-0.10000000000000001\r\n20,1e-3,0,0,9.81,0,0\n";
         std::fs::write(&p, text).unwrap();
@@ -174,6 +174,5 @@ mod tests {
         assert!(e.contains("imu.csv:2") && e.contains("column 4"), "{e}");
         std::fs::write(&p, "10,0,0,0,0,0,0\n10,0,0,0,0,0,0\n").unwrap();
         assert!(read_real_imu(&p).unwrap_err().to_string().contains(":2:"));
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -483,10 +483,10 @@ mod tests {
         // Same seed, same scene; JSON round trip.
         assert_eq!(Scene::build(&p, 11), s);
         assert_ne!(Scene::build(&p, 12), s);
-        let f = std::env::temp_dir().join(format!("vidslam-scene-{}.json", std::process::id()));
+        let tmp = tempfile::tempdir().unwrap();
+        let f = tmp.path().join("scene.json");
         s.write_json(&f).unwrap();
         assert_eq!(Scene::read_json(&f).unwrap(), s);
-        std::fs::remove_file(f).ok();
     }
 
     #[test]
