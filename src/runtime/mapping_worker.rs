@@ -87,6 +87,9 @@ pub struct MappingOutput {
     pub keyframe_times: Vec<TimeNs>,
     /// Time per job, s.
     pub job_times_s: Vec<f64>,
+    /// Each view's scale against the propagated map, where measured
+    /// ([`crate::mapping::semidense::ObserveStats::view_scale`]).
+    pub view_scales: Vec<f32>,
     /// Real time: views of the keyframe the mapper skipped to keep up ([`MappingOptions`]).
     pub views_skipped: usize,
 }
@@ -260,7 +263,8 @@ fn run(
                 let mut views = 0;
                 for h in &history {
                     to_f32(&h.image, &mut scratch);
-                    kf.observe(&scratch, &h.t_world_cam);
+                    let st = kf.observe(&scratch, &h.t_world_cam);
+                    out.view_scales.extend(st.view_scale);
                     views += 1;
                 }
                 cur = Some(Current {
@@ -275,7 +279,8 @@ fn run(
             MapJob::Observe { frame, .. } => {
                 if let Some(c) = cur.as_mut() {
                     to_f32(&frame.image, &mut scratch);
-                    c.kf.observe(&scratch, &frame.t_world_cam);
+                    let st = c.kf.observe(&scratch, &frame.t_world_cam);
+                    out.view_scales.extend(st.view_scale);
                     c.views += 1;
                     if frame.t > c.t {
                         c.forward_views += 1;

@@ -127,6 +127,14 @@ pub struct ReplayReport {
     pub imu_scale_p10: Option<f64>,
     pub imu_scale_p50: Option<f64>,
     pub imu_scale_p90: Option<f64>,
+    /// Each mapper view's scale against the map propagated from the previous keyframe (the
+    /// median ratio of its inverse depths to the priors; 1 = its tracked baseline agrees with
+    /// the map chain, `[mapping] view_scale_gain`): how many views, and their 10th / 50th / 90th
+    /// percentiles.
+    pub view_scale_views: usize,
+    pub view_scale_p10: Option<f64>,
+    pub view_scale_p50: Option<f64>,
+    pub view_scale_p90: Option<f64>,
     /// Images divided by the dataset's vignetting (`cam0/vignette.yaml`), and the pixels that
     /// clipped at 255 doing so.
     pub vignette_corrected: bool,
@@ -172,6 +180,8 @@ impl ReplayReport {
         let map_ms = sorted(out.mapping.job_times_s.iter().map(|t| t * 1e3));
         let imu_scale = sorted(out.odometry.imu_scale.iter().map(|e| e.scale));
         let imu_scale_pct = |p: f64| (!imu_scale.is_empty()).then(|| percentile(&imu_scale, p));
+        let view_scale = sorted(out.mapping.view_scales.iter().map(|&s| s as f64));
+        let view_scale_pct = |p: f64| (!view_scale.is_empty()).then(|| percentile(&view_scale, p));
         let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
         let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
         let map_lat = sorted(
@@ -302,6 +312,10 @@ impl ReplayReport {
             imu_scale_p10: imu_scale_pct(10.0),
             imu_scale_p50: imu_scale_pct(50.0),
             imu_scale_p90: imu_scale_pct(90.0),
+            view_scale_views: view_scale.len(),
+            view_scale_p10: view_scale_pct(10.0),
+            view_scale_p50: view_scale_pct(50.0),
+            view_scale_p90: view_scale_pct(90.0),
             vignette_corrected: out.odometry.vignette_corrected,
             vignette_saturated_px: out.odometry.vignette_saturated_px,
             semidense_points: out
@@ -518,6 +532,19 @@ impl ReplayReport {
                 format!(
                     "{} estimates, tracked→metric p10/p50/p90 {:.3} / {:.3} / {:.3}",
                     self.imu_scale_estimates, p10, p50, p90
+                ),
+            );
+        }
+        if let (Some(p10), Some(p50), Some(p90)) = (
+            self.view_scale_p10,
+            self.view_scale_p50,
+            self.view_scale_p90,
+        ) {
+            row(
+                "view scale vs map",
+                format!(
+                    "{} mapper views, p10/p50/p90 {:.3} / {:.3} / {:.3}",
+                    self.view_scale_views, p10, p50, p90
                 ),
             );
         }

@@ -139,6 +139,10 @@ pub struct SemidenseKeyframe {
     /// Candidate index of every pixel (row-major), or `NO_CANDIDATE`.
     index: Vec<u32>,
     range_m_inv: (f64, f64),
+    /// The current view's estimate of each candidate, before it is fused (`observe`).
+    pending: Vec<Option<Estimate>>,
+    /// Ratios of the current view's estimates to their propagated priors (`view_scale`).
+    ratios: Vec<f32>,
 }
 
 fn isometry_is_finite(t: &Isometry3<f64>) -> bool {
@@ -183,6 +187,8 @@ impl SemidenseKeyframe {
             states: Vec::new(),
             index: Vec::new(),
             range_m_inv: (0.0, 1.0),
+            pending: Vec::new(),
+            ratios: Vec::new(),
         };
         kf.set_inv_depth_range(cfg.min_inv_depth_m_inv, cfg.max_inv_depth_m_inv);
         if valid {
@@ -289,6 +295,8 @@ impl SemidenseKeyframe {
             .map(|c| template(&self.image, c.x as usize, c.y as usize))
             .collect();
         self.states = vec![PixelState::EMPTY; self.candidates.len()];
+        self.pending = vec![None; self.candidates.len()];
+        self.ratios = Vec::with_capacity(self.candidates.len());
     }
 
     /// Number of candidate pixels.
@@ -422,8 +430,10 @@ impl SemidenseKeyframe {
 
     /// One more overlapping view (eq. 27–28): epipolar search of each candidate's 7x7 patch in the
     /// raw `image` taken at camera pose `t_world_cam`, sub-pixel refinement, per-estimate
-    /// inverse-depth standard deviation, fusion. Views can come from before or after the keyframe;
-    /// nearest first is fastest. Never panics: unusable views are reported in `skipped`.
+    /// inverse-depth standard deviation, fusion. The whole view is searched before any estimate is
+    /// fused, so that its scale against the propagated priors is measured first
+    /// ([`ObserveStats::view_scale`], `view_scale_gain`). Views can come from before or after the
+    /// keyframe; nearest first is fastest. Never panics: unusable views are reported in `skipped`.
     pub fn observe(&mut self, image: &Image<f32>, t_world_cam: &Isometry3<f64>) -> ObserveStats {
         let mut stats = ObserveStats {
             candidates: self.candidates.len(),
@@ -465,8 +475,11 @@ impl SemidenseKeyframe {
         let min_votes = cfg.min_consistent_views.max(1);
         let first_kappa = cfg.first_estimate_search_sigmas as f64;
         let pose_rel = cfg.baseline_std_m as f64 / ctx.baseline_m;
-        let one = |(c, t7): (&Candidate, &[f32; PATCH]), st: &mut PixelState| -> ObserveStats {
+        let one = |(c, t7): (&Candidate, &[f32; PATCH]),
+                   (st, pending): (&mut PixelState, &mut Option<Estimate>)|
+         -> ObserveStats {
             let mut s = ObserveStats::default();
+            *pending = None;
             if !st.run.lo.is_finite() && st.searches as usize >= cfg.give_up_after_searches {
                 s.given_up = 1;
                 return s;
@@ -517,7 +530,7 @@ impl SemidenseKeyframe {
                 Outcome::Matched(e) => {
                     s.searched = 1;
                     s.matched = 1;
-                    st.insert(e, cfg);
+                    *pending = Some(e);
                 }
                 Outcome::OutOfView => s.out_of_view = 1,
                 Outcome::LowParallax => s.low_parallax = 1,
@@ -534,17 +547,40 @@ impl SemidenseKeyframe {
             self.candidates
                 .par_iter()
                 .zip(self.templates.par_iter())
-                .zip(self.states.par_iter_mut())
+                .zip(self.states.par_iter_mut().zip(self.pending.par_iter_mut()))
                 .fold(ObserveStats::default, |acc, (c, st)| acc.add(&one(c, st)))
                 .reduce(ObserveStats::default, |a, b| a.add(&b))
         } else {
             self.candidates
                 .iter()
                 .zip(self.templates.iter())
-                .zip(self.states.iter_mut())
+                .zip(self.states.iter_mut().zip(self.pending.iter_mut()))
                 .fold(ObserveStats::default(), |acc, (c, st)| acc.add(&one(c, st)))
         };
-        stats.add(&counts)
+        let mut stats = stats.add(&counts);
+        stats.view_scale = view_scale(
+            &self.states,
+            &self.pending,
+            &mut self.ratios,
+            cfg.view_scale_min_points,
+        );
+        // The view's scale taken only in part (`view_scale_gain`): each of its estimates moved
+        // by `r^-(1-g)` toward the propagated map's scale, then fused.
+        let gain = cfg.view_scale_gain;
+        let factor = match stats.view_scale {
+            Some(r) if gain < 1.0 => r.powf(gain - 1.0).clamp(0.8, 1.25),
+            _ => 1.0,
+        };
+        for (st, e) in self.states.iter_mut().zip(&self.pending) {
+            if let Some(e) = e {
+                let e = Estimate {
+                    rho: e.rho * factor,
+                    sigma: e.sigma * factor,
+                };
+                st.insert(e, cfg);
+            }
+        }
+        stats
     }
 
     /// The current fused estimates after outlier removal: a consistent run of at least
@@ -608,4 +644,31 @@ impl SemidenseKeyframe {
         }
         out
     }
+}
+
+/// The median ratio of the current view's estimates (`pending`) to the priors propagated from
+/// the previous keyframe's map. A baseline error shared by the whole view scales every inverse
+/// depth triangulated from it by the same factor, so this is that view's scale against the map
+/// chain. `None` below `view_scale_min_points` such pixels (a first map has no priors).
+fn view_scale(
+    states: &[PixelState],
+    pending: &[Option<Estimate>],
+    ratios: &mut Vec<f32>,
+    min_points: usize,
+) -> Option<f32> {
+    ratios.clear();
+    for (st, e) in states.iter().zip(pending) {
+        if let Some(e) = e
+            && let Some(p) = st.prior
+            && p.rho > 0.0
+        {
+            ratios.push(e.rho / p.rho);
+        }
+    }
+    let n = ratios.len();
+    if n == 0 || n < min_points {
+        return None;
+    }
+    let (_, m, _) = ratios.select_nth_unstable_by(n / 2, f32::total_cmp);
+    Some(*m).filter(|m| m.is_finite() && *m > 0.0)
 }

@@ -197,6 +197,15 @@ pub struct SemidenseConfig {
     pub prior_std_inflation: f32,
     /// …and is at least this fraction of the propagated inverse depth.
     pub prior_min_rel_std: f32,
+    /// How much of a view's own scale its estimates keep, 0..1: 1 takes each view's
+    /// triangulation as its tracked pose gives it; below 1 every estimate of the view is moved
+    /// by `r^-(1-gain)`, `r` = [`ObserveStats::view_scale`] (factor clamped to 0.8–1.25), so a
+    /// baseline error shared by the view reaches the map only in part and the map chain's scale
+    /// follows the tracked (IMU-informed) baselines with that gain per view.
+    pub view_scale_gain: f32,
+    /// At least this many of the view's estimates must fall on propagated priors for its scale
+    /// to be measured (and corrected).
+    pub view_scale_min_points: usize,
     /// Search the candidates of one `observe` in parallel on the current rayon pool (the result
     /// is identical). The mapping thread runs it on a pool of its own at the mapper's lowered
     /// priority, so the tracking thread keeps its core (`runtime::mapping_worker`).
@@ -231,6 +240,8 @@ impl Default for SemidenseConfig {
             neighbour_rel_tolerance: 0.03,
             prior_std_inflation: 2.0,
             prior_min_rel_std: 0.02,
+            view_scale_gain: 1.0,
+            view_scale_min_points: 200,
             parallel: true,
         }
     }
@@ -285,7 +296,7 @@ pub enum ViewSkip {
 }
 
 /// What one [`SemidenseKeyframe::observe`] did, per candidate pixel.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ObserveStats {
     /// The whole view was skipped (all counters below are then 0 except `candidates`).
     pub skipped: Option<ViewSkip>,
@@ -314,6 +325,10 @@ pub struct ObserveStats {
     /// Not searched in this view: too little parallax to improve the pixel's fused estimate
     /// (`max_view_std_ratio`).
     pub converged: usize,
+    /// The view's scale against the map chain: median ratio of its inverse-depth estimates to
+    /// the priors propagated from the previous keyframe, before `view_scale_gain` is applied;
+    /// `None` below `view_scale_min_points` such pixels.
+    pub view_scale: Option<f32>,
 }
 
 impl ObserveStats {

@@ -538,3 +538,63 @@ fn short_baselines_with_a_shared_pose_error_do_not_make_a_map_at_their_scale() {
     assert!(n > 5000, "{n} points");
     assert!((ratio - 1.0).abs() < 0.02, "median ratio {ratio}");
 }
+
+/// A keyframe whose left half holds a propagated map at the true scale, observed by four views
+/// whose tracked baselines share a 5 % error (inverse depths triangulated from them × 1/0.95).
+/// Returns each view's measured scale and the median inverse depth over the truth of the points
+/// in the right half, which only those views see.
+fn keyframe_half_propagated_then_biased_views(cfg: &SemidenseConfig) -> (Vec<f32>, f64) {
+    let cam = camera();
+    let plane = Plane::new(Vector3::new(0.25, -0.14, 1.0), 1.0);
+    let kf_pose = pose(0);
+    let image = plane.render(&cam, &kf_pose, 1.0, 0.0);
+    let mut earlier = SemidenseKeyframe::new(&image, &cam, &kf_pose, cfg);
+    for k in [1, -1, 2, -2, 3, -3] {
+        earlier.observe(&plane.render(&cam, &pose(k), 1.0, 0.0), &pose(k));
+    }
+    let mut prior = earlier.map();
+    let half = cam.width as f32 / 2.0;
+    prior.points.retain(|p| p.u_px < half - 10.0);
+    let mut kf = SemidenseKeyframe::new(&image, &cam, &kf_pose, cfg);
+    assert!(kf.propagate_from(&prior) > 1000);
+    let mut scales = Vec::new();
+    for k in [1, -1, 2, -2] {
+        let truth = pose(k);
+        let tracked = Isometry3::from_parts(
+            Translation3::from(truth.translation.vector * 0.95),
+            truth.rotation,
+        );
+        let s = kf.observe(&plane.render(&cam, &truth, 1.0, 0.0), &tracked);
+        scales.extend(s.view_scale);
+    }
+    let mut m = kf.map();
+    m.points.retain(|p| p.u_px > half + 10.0);
+    assert!(m.points.len() > 1000, "{} points", m.points.len());
+    (scales, median_inv_depth_ratio(&plane, &m))
+}
+
+#[test]
+fn a_views_shared_baseline_error_reaches_the_map_only_with_the_view_scale_gain() {
+    // Each view's scale against the propagated map is measured (×1/0.95 = 1.053)…
+    let full = SemidenseConfig::default();
+    let (scales, ratio) = keyframe_half_propagated_then_biased_views(&full);
+    assert_eq!(scales.len(), 4, "{scales:?}");
+    assert!(
+        scales.iter().all(|s| (s - 1.0 / 0.95).abs() < 0.01),
+        "{scales:?}"
+    );
+    // …and the points only these views see take their scale…
+    assert!((ratio - 1.0 / 0.95).abs() < 0.01, "median ratio {ratio}");
+    // …while with gain 0 every view is moved onto the map's scale, and so are the points only
+    // they see.
+    let anchored = SemidenseConfig {
+        view_scale_gain: 0.0,
+        ..full
+    };
+    let (scales, ratio) = keyframe_half_propagated_then_biased_views(&anchored);
+    assert!(
+        scales.iter().all(|s| (s - 1.0 / 0.95).abs() < 0.01),
+        "{scales:?}"
+    );
+    assert!((ratio - 1.0).abs() < 0.01, "median ratio {ratio}");
+}
