@@ -537,6 +537,27 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     assert!(last_t.is_some_and(|t| t > 30.0), "{last_t:?}");
     let median = scales[scales.len() / 2];
     assert!((median - 1.0).abs() < 0.02, "median {median}");
+    // The two paths by which a scale enters the map chain agree with it here: each mapper
+    // view's triangulation with the map propagated into its keyframe, and each window solve's
+    // keyframe baseline with the one tracked.
+    let median_of = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (v.len(), v.get(v.len() / 2).copied().unwrap_or(f64::NAN))
+    };
+    let (n_views, view_scale) =
+        median_of(with.mapping.view_scales.iter().map(|&s| s as f64).collect());
+    let (n_solves, window_ratio) = median_of(with.odometry.window_baseline_ratios.clone());
+    println!(
+        "view scale vs map: {n_views} views, median {view_scale:.4}; window baseline \
+         solved/tracked: {n_solves} solves, median {window_ratio:.4}"
+    );
+    assert!(n_views > 100, "{n_views} views measured");
+    assert!((view_scale - 1.0).abs() < 0.005, "view scale {view_scale}");
+    assert!(n_solves > 20, "{n_solves} window solves measured");
+    assert!(
+        (window_ratio - 1.0).abs() < 0.01,
+        "window ratio {window_ratio}"
+    );
     // Zero-velocity updates hold the 2 s idle after the landing (src/sim/flights.rs), and fire
     // only where the vehicle is (nearly) at rest: after the take-off, every frame whose velocity is
     // exactly zero has a true speed under the updates' bound (the end of the hover turn, where

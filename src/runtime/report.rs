@@ -90,6 +90,11 @@ pub struct ReplayReport {
     pub window_solves: usize,
     pub window_ms_p50: f64,
     pub window_ms_max: f64,
+    /// Each window solve's change of the newest keyframe baseline (solved / as tracked, the
+    /// correction that carries the IMU's scale into the maps): 10th / 50th / 90th percentiles.
+    pub window_baseline_ratio_p10: Option<f64>,
+    pub window_baseline_ratio_p50: Option<f64>,
+    pub window_baseline_ratio_p90: Option<f64>,
     /// In-flight keyframe adjustments applied (`[keyframe_bundle]`, on a thread of their own
     /// started when a new keyframe is installed), their wall time, ms, and the median over
     /// keyframes of each adjustment's median relative inverse-depth change, %; take-off
@@ -183,6 +188,9 @@ impl ReplayReport {
         let view_scale = sorted(out.mapping.view_scales.iter().map(|&s| s as f64));
         let view_scale_pct = |p: f64| (!view_scale.is_empty()).then(|| percentile(&view_scale, p));
         let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
+        let window_ratio = sorted(out.odometry.window_baseline_ratios.iter().copied());
+        let window_ratio_pct =
+            |p: f64| (!window_ratio.is_empty()).then(|| percentile(&window_ratio, p));
         let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
         let map_lat = sorted(
             out.odometry
@@ -294,6 +302,9 @@ impl ReplayReport {
             window_solves: out.odometry.window_solve_s.len(),
             window_ms_p50: percentile(&window_ms, 50.0),
             window_ms_max: window_ms.iter().copied().fold(0.0, f64::max),
+            window_baseline_ratio_p10: window_ratio_pct(10.0),
+            window_baseline_ratio_p50: window_ratio_pct(50.0),
+            window_baseline_ratio_p90: window_ratio_pct(90.0),
             keyframe_bundles: kb_ms.len(),
             keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
             keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),
@@ -565,10 +576,21 @@ impl ReplayReport {
         if self.window_solves > 0 {
             row(
                 "keyframe window",
-                format!(
-                    "{} solves, ms p50/max {:.2} / {:.2}",
-                    self.window_solves, self.window_ms_p50, self.window_ms_max
-                ),
+                match (
+                    self.window_baseline_ratio_p10,
+                    self.window_baseline_ratio_p50,
+                    self.window_baseline_ratio_p90,
+                ) {
+                    (Some(p10), Some(p50), Some(p90)) => format!(
+                        "{} solves, ms p50/max {:.2} / {:.2}, baseline solved/tracked \
+                         p10/p50/p90 {:.3} / {:.3} / {:.3}",
+                        self.window_solves, self.window_ms_p50, self.window_ms_max, p10, p50, p90
+                    ),
+                    _ => format!(
+                        "{} solves, ms p50/max {:.2} / {:.2}",
+                        self.window_solves, self.window_ms_p50, self.window_ms_max
+                    ),
+                },
             );
         }
         if self.keyframe_install_latency_frames_max > 0.0 {

@@ -418,6 +418,11 @@ pub struct OdometryStats {
     pub imu_scale: Vec<ScaleSample>,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
+    /// Each window solve's change of the distance from the window's previous newest keyframe
+    /// to the new one (solved / as tracked; baselines over 1 cm): the correction by which the
+    /// IMU's scale reaches the maps, since the mapper's world is chained through it
+    /// (`mapper_from_world`).
+    pub window_baseline_ratios: Vec<f64>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
@@ -1217,6 +1222,13 @@ impl Odometry {
             return None;
         }
         let correction = pose_of(&x_new) * pose_of(&old).inverse();
+        if let Some(xk) = self.window.state(newest) {
+            let before_m = (old.nav.p_world_m - x_prev.nav.p_world_m).norm();
+            let after_m = (x_new.nav.p_world_m - xk.nav.p_world_m).norm();
+            if before_m > 0.01 {
+                self.stats.window_baseline_ratios.push(after_m / before_m);
+            }
+        }
         let cov = *self.tracker.covariance();
         self.tracker.reset_state(x_new, cov);
         if let Some(xk) = self.window.state(newest)
