@@ -7,7 +7,7 @@
 //! With the targets as they are by default, the smoothness prior pulls every inverse depth toward
 //! its neighbours' median, and what of that pull is common to all points moves the map's scale,
 //! which the photometric terms do not see and a few tenths of a second of IMU hold only weakly
-//! (README, *The keyframe adjustment's smoothness prior moved the map's scale*).
+//! (docs/odometry-log.md, *The keyframe adjustment's smoothness prior moved the map's scale*).
 
 mod scratch;
 

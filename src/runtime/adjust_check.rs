@@ -1,11 +1,11 @@
 //! The in-flight keyframe adjustment ([`super::keyframe_bundle`]) started at the truth, on a
-//! dataset with ground-truth states and depth maps (the simulator's): every `every_frames`-th
-//! frame becomes a keyframe with its points at the rendered depth, the next `views` frames its
-//! views at their true states, and the adjustment runs with free depths (the prior toward given
-//! depths would hold them at the truth). An unbiased adjustment leaves the map where it is; how
-//! far it moves the map's scale (median inverse depth and the last view's baseline against the
-//! truth) is what this measures (`vidslam dataset adjust-check`; README, *The keyframe
-//! adjustment's smoothness prior moved the map's scale*).
+//! dataset with ground-truth states and depth maps (the simulator's): every `every_frames`-th frame
+//! becomes a keyframe with its points at the rendered depth, the next `views` frames its views at
+//! their true states, and the adjustment runs with free depths (the prior toward given depths would
+//! hold them at the truth). An unbiased adjustment leaves the map where it is; how far it moves the
+//! map's scale (median inverse depth and the last view's baseline against the truth) is what this
+//! measures (`vidslam dataset adjust-check`; docs/odometry-log.md, *The keyframe adjustment's
+//! smoothness prior moved the map's scale*).
 
 use super::Config;
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};

@@ -4,11 +4,12 @@
 //!
 //! The semidense mapper triangulates a keyframe from the poses tracking gave its views, and those
 //! poses were tracked against the previous keyframe's map: a map's scale or distortion error is
-//! passed on to the next map through the poses (README, *Why S-V101 fails*). Here the keyframe's
-//! inverse depths, its views' states, the velocity at the keyframe and the accelerometer bias are
-//! optimised together, the views chained by the IMU (eq. 13) from the keyframe's state (its pose is
-//! the gauge, its velocity has a prior around the keyframe window's estimate), so the map that is
-//! installed for tracking agrees with the IMU's metric displacement and with every view's pixels.
+//! passed on to the next map through the poses (docs/odometry-log.md, *Why S-V101 fails*). Here the
+//! keyframe's inverse depths, its views' states, the velocity at the keyframe and the accelerometer
+//! bias are optimised together, the views chained by the IMU (eq. 13) from the keyframe's state
+//! (its pose is the gauge, its velocity has a prior around the keyframe window's estimate), so the
+//! map that is installed for tracking agrees with the IMU's metric displacement and with every
+//! view's pixels.
 //!
 //! It runs on a thread of its own ([`super::refinement_worker`]) once the keyframe's map is ready
 //! (`[keyframe_bundle]`); the keyframe is installed when it is back. The frames tracked meanwhile
@@ -43,11 +44,11 @@ pub struct KeyframeBundleConfig {
     pub accel_bias_std_m_s2: f64,
     /// Each inverse depth is pulled toward its image neighbours' median with this relative σ.
     pub smoothness_rel_std: f64,
-    /// Rescale the smoothness prior's targets so that the prior does not pull the map's scale
-    /// (it shortened free-depth maps 1.5–8 % per adjustment from the truth; README, *The keyframe
-    /// adjustment's smoothness prior moved the map's scale*). Off by default: in the closed loop
-    /// it made S-V101 (5 of 6 seeds) and the demo (median of 24 seeds 2.75 → 3.21 cm) worse —
-    /// that pull had been offsetting other scale errors of the chain.
+    /// Rescale the smoothness prior's targets so that the prior does not pull the map's scale (it
+    /// shortened free-depth maps 1.5–8 % per adjustment from the truth; docs/odometry-log.md, *The
+    /// keyframe adjustment's smoothness prior moved the map's scale*). Off by default: in the
+    /// closed loop it made S-V101 (5 of 6 seeds) and the demo (median of 24 seeds 2.75 → 3.21 cm)
+    /// worse — that pull had been offsetting other scale errors of the chain.
     pub smoothness_scale_neutral: bool,
     /// Standard deviation of each inverse depth around the mapper's, relative (0 = none).
     pub depth_rel_std: f64,

@@ -63,7 +63,7 @@ pub struct ReuseConfig {
     /// change of gauge, [`crate::smoother::KeyframeWindow::transform_world`]), the new keyframe
     /// joined to its newest by the IMU and by the relative pose through that correction — so
     /// the IMU's hold on the velocity survives the return. (S-V101 seeds 1–6 0.42–3.98 m with
-    /// it, 0.20–96.5 m without; README, *A return that keeps the keyframe window*.)
+    /// it, 0.20–96.5 m without; docs/odometry-log.md, *A return that keeps the keyframe window*.)
     pub keep_window: bool,
     /// A stored keyframe that fails its probation sends the tracker back to the keyframe it
     /// left only if at least this fraction of that one's points (`overlap_level`) is still in

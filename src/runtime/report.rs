@@ -112,10 +112,10 @@ pub struct ReplayReport {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub keyframe_bundle_catch_up_frames: usize,
-    /// New keyframes in flight: frames from the one that started a keyframe to its first map
-    /// from the mapper, and to its installation for tracking (median and largest). In real time
-    /// this is the latency the mapper's and the adjustment's speed give (README, *S-V101 in real
-    /// time, and its latencies*); offline the map's is `[bootstrap] offline_lag_frames`.
+    /// New keyframes in flight: frames from the one that started a keyframe to its first map from
+    /// the mapper, and to its installation for tracking (median and largest). In real time this is
+    /// the latency the mapper's and the adjustment's speed give (docs/odometry-log.md, *S-V101 in
+    /// real time, and its latencies*); offline the map's is `[bootstrap] offline_lag_frames`.
     pub keyframe_map_latency_frames_p50: f64,
     pub keyframe_map_latency_frames_max: f64,
     pub keyframe_install_latency_frames_p50: f64,
@@ -162,8 +162,9 @@ pub struct ReplayReport {
     /// [`crate::eval::imu_consistency::implied_accel_bias`]), m/s²: what an odometry tracking the
     /// images exactly would estimate; `None` without ground truth.
     pub accel_bias_gt_m_s2: Option<[f64; 3]>,
-    /// Norm of the difference of the two, m/s² (S-V101's real IMU: ~0.4, the odometry's
-    /// attitude leaning by ~2°, see README *The accelerometer bias against the ground truth*).
+    /// Norm of the difference of the two, m/s² (S-V101's real IMU: ~0.4, the odometry's attitude
+    /// leaning by ~2°, see docs/odometry-log.md, *The accelerometer bias against the ground
+    /// truth*).
     pub accel_bias_error_m_s2: Option<f64>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]

@@ -2,7 +2,7 @@
 //! against the IMU integrated along it ([`crate::imu::flight_scale`], `[scale_observer]`).
 //!
 //! It only measures (`report.json` `imu_scale_*`, `OUT/imu_scale.csv`): feeding the estimate back
-//! into the maps was tried and not kept (see the README).
+//! into the maps was tried and not kept (see docs/odometry-log.md).
 
 use crate::imu::flight_scale::{
     FlightScale, FlightScalePrior, TrackedPose, dead_reckon, solve_flight_scale,

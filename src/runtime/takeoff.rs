@@ -27,13 +27,13 @@
 //!   corrections within `takeoff_min_significance_sigmas` of 1 are not applied.
 //!
 //! A first map started in flight after a loss (`[bootstrap] reinit_velocity_std_m_s` > 0, off by
-//! default; `bundle_adjustment` only) is refined the same way, from the state dead-reckoned
-//! through the loss: its velocity is the start velocity's prior, with that standard deviation
-//! instead of the rest's. Such a prior holds the scale only loosely, so the smoothness prior's
-//! targets are made scale-neutral there
-//! ([`crate::smoother::photometric_bundle::BundleConfig::smoothness_scale_neutral`]): without,
-//! the passes shortened the covered-lens rebuilds of demo seeds 1–8 by 9 % each (median; README,
-//! *A first map started in flight*).
+//! default; `bundle_adjustment` only) is refined the same way, from the state dead-reckoned through
+//! the loss: its velocity is the start velocity's prior, with that standard deviation instead of
+//! the rest's. Such a prior holds the scale only loosely, so the smoothness prior's targets are
+//! made scale-neutral there
+//! ([`crate::smoother::photometric_bundle::BundleConfig::smoothness_scale_neutral`]): without, the
+//! passes shortened the covered-lens rebuilds of demo seeds 1–8 by 9 % each (median;
+//! docs/odometry-log.md, *A first map started in flight*).
 //!
 //! A pass (0.8 s on the demo's 12 views and 3000 points) runs on the refinement thread
 //! ([`super::refinement_worker`]) while the odometry keeps dead-reckoning the frames; when it is

@@ -33,9 +33,9 @@ pub struct WindowConfig {
     /// Run the window and move keyframes and state onto its solution.
     pub enabled: bool,
     /// Keyframes kept before the oldest is marginalised. 12 (since 2026-11-27; 6 before): the IMU
-    /// between them spans ~5 s of flight instead of ~2.5 s. Offline, demo seeds 1–24 median
-    /// 2.67 → 2.48 cm (resets 6 → 2); S-V101 seeds 1–16 median 1.01 → 0.47 m, runs beyond 2 m
-    /// 5 → 3; 10 and 16 keyframes lost more S-V101 seeds (README, *A longer keyframe window*).
+    /// between them spans ~5 s of flight instead of ~2.5 s. Offline, demo seeds 1–24 median 2.67 →
+    /// 2.48 cm (resets 6 → 2); S-V101 seeds 1–16 median 1.01 → 0.47 m, runs beyond 2 m 5 → 3; 10
+    /// and 16 keyframes lost more S-V101 seeds (docs/odometry-log.md, *A longer keyframe window*).
     pub max_keyframes: usize,
     /// The tracking information of a relative pose is multiplied by these (rotation rows and
     /// translation rows): the photometric Hessian treats every pixel as independent, but the

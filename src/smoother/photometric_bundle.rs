@@ -2,11 +2,11 @@
 //! states of the frames that observe it, chained by IMU preintegration.
 //!
 //! The paper triangulates each keyframe from poses that tracking (or, at take-off, IMU dead
-//! reckoning) already fixed, and tracks later frames against that map: pose and structure are
-//! never estimated together, so a translation-direction error of the poses becomes a distortion of
-//! the map that the tracker then reproduces (README, *Why S-V101 fails*). This module estimates
-//! them together, the way DSO's windowed optimisation does for its photometric terms, with the IMU
-//! terms of the paper's eq. 13 between consecutive frames:
+//! reckoning) already fixed, and tracks later frames against that map: pose and structure are never
+//! estimated together, so a translation-direction error of the poses becomes a distortion of the
+//! map that the tracker then reproduces (docs/odometry-log.md, *Why S-V101 fails*). This module
+//! estimates them together, the way DSO's windowed optimisation does for its photometric terms,
+//! with the IMU terms of the paper's eq. 13 between consecutive frames:
 //!
 //! * unknowns: the velocity of the start state (its pose is the gauge: the host keyframe's pose),
 //!   one accelerometer bias shared by all states, per view its rotation, position, velocity and an
@@ -501,25 +501,25 @@ impl PhotometricBundle<'_> {
     /// The smoothness prior's target per point: the median inverse depth of its neighbours
     /// (held fixed while a linearisation is in use, as DSO's initialiser does).
     ///
-    /// Held targets pull every point toward its neighbours' median, and what of that pull is
-    /// common to all of a host's points moves its map's scale — which the photometric terms do not
-    /// see (depths and translations scale together) and a few tenths of a second of IMU hold only
+    /// Held targets pull every point toward its neighbours' median, and what of that pull is common
+    /// to all of a host's points moves its map's scale — which the photometric terms do not see
+    /// (depths and translations scale together) and a few tenths of a second of IMU hold only
     /// weakly. Each accepted step re-centres the targets and the pull starts again: from the true
     /// states and depths of the rendered room the free-depth keyframe adjustment ended 1.5–8 %
-    /// short, more with more iterations (README, *The keyframe adjustment's smoothness prior
-    /// moved the map's scale*). With `smoothness_scale_neutral` each host's targets are
-    /// multiplied by the `k` that makes the prior's gradient along the host's uniform scaling
-    /// `ρ → (1 + ε) ρ` zero at the current depths, `Σ x (x / k − 1) = 0` with `x = ρ / t`:
+    /// short, more with more iterations (docs/odometry-log.md, *The keyframe adjustment's
+    /// smoothness prior moved the map's scale*). With `smoothness_scale_neutral` each host's
+    /// targets are multiplied by the `k` that makes the prior's gradient along the host's uniform
+    /// scaling `ρ → (1 + ε) ρ` zero at the current depths, `Σ x (x / k − 1) = 0` with `x = ρ / t`:
     /// `k = Σ x² / Σ x`. The prior's curvature is kept, so within a linearisation it still holds
     /// the scale where it is (freeing it altogether, an extra log-scale unknown tried first, let
     /// the accelerometer bias jump 0.6 m/s² and demo seed 1 diverge).
     ///
-    /// With an even number of neighbours (`smoothness_neighbours`, 8) the target is the *upper*
-    /// of the two middle values: where a point's neighbours straddle two surfaces it is pulled
-    /// toward the nearer one. That is most of the pull toward short maps — from the truth
-    /// (`vidslam dataset adjust-check`, demo seed 1, a keyframe every 40 frames) median inverse
-    /// depth × 1.028 as it is, × 0.980 with the mean of the two middle values — and it is kept
-    /// on purpose: the closed loop leans on it (README, *The upper median holds S-V101's maps*).
+    /// With an even number of neighbours (`smoothness_neighbours`, 8) the target is the *upper* of
+    /// the two middle values: where a point's neighbours straddle two surfaces it is pulled toward
+    /// the nearer one. That is most of the pull toward short maps — from the truth (`vidslam
+    /// dataset adjust-check`, demo seed 1, a keyframe every 40 frames) median inverse depth × 1.028
+    /// as it is, × 0.980 with the mean of the two middle values — and it is kept on purpose: the
+    /// closed loop leans on it (docs/odometry-log.md, *The upper median holds S-V101's maps*).
     fn smoothness_targets(&self, neighbours: &[Vec<u32>], inv_depth: &[f64]) -> Vec<f64> {
         let mut buf = Vec::new();
         let mut targets: Vec<f64> = neighbours

@@ -44,11 +44,11 @@ pub struct TrackerConfig {
     /// Prior standard deviation of the brightness offset, gray levels.
     pub affine_offset_prior_std_gray: f64,
     /// A frame whose affine log-gain relative to the keyframe is below −this asks for another
-    /// keyframe (0 = never): the brightness model is collapsing onto the flat-image solution
-    /// (gain near 0, offset near the mean grey) that fits a frame misaligned with the keyframe as
-    /// well as an aligned one. Over the rendered flights the true exposure ratio stays within
-    /// e^±0.3 (`cam0/exposure.csv`); frames tracked on against such a keyframe walked to e^-2 …
-    /// e^-6.5 and the flights that did so for long diverged (README *The brightness model
+    /// keyframe (0 = never): the brightness model is collapsing onto the flat-image solution (gain
+    /// near 0, offset near the mean grey) that fits a frame misaligned with the keyframe as well as
+    /// an aligned one. Over the rendered flights the true exposure ratio stays within e^±0.3
+    /// (`cam0/exposure.csv`); frames tracked on against such a keyframe walked to e^-2 … e^-6.5 and
+    /// the flights that did so for long diverged (docs/odometry-log.md, *The brightness model
     /// collapsed*).
     pub collapsed_log_gain: f64,
     /// A frame is flagged if fewer than this fraction of the keyframe's level-0 points are inliers.
@@ -75,9 +75,9 @@ pub struct TrackerConfig {
     pub use_vision: bool,
     /// Divide every image by the camera's vignetting (`cam0/vignette.yaml` of the dataset, see
     /// `camera::Vignette`) before tracking and mapping. Without a calibration nothing is done.
-    /// Off by default: on the simulator's 35 % fall-off it did not help the closed loop (demo
-    /// seeds 1–8: median ATE 5.5 m on, 5.3 m off; S-V101 138 m on, 0.62 m off — single chaotic
-    /// samples, see the README), although it removes a bias the affine brightness model cannot
+    /// Off by default: on the simulator's 35 % fall-off it did not help the closed loop (demo seeds
+    /// 1–8: median ATE 5.5 m on, 5.3 m off; S-V101 138 m on, 0.62 m off — single chaotic samples,
+    /// see docs/odometry-log.md), although it removes a bias the affine brightness model cannot
     /// absorb. The thresholds (gradients, Huber, outliers) were tuned on uncorrected images, whose
     /// corners the correction amplifies by up to 1.5x, noise included.
     pub correct_vignetting: bool,

@@ -103,16 +103,16 @@ pub struct BootstrapConfig {
     pub urgent_inlier_ratio: f64,
     /// …and, when adjustments come back late (real time, or `[keyframe_bundle] lag_frames`
     /// emulating it), while the new keyframe's adjustment still lacks the frames it needs
-    /// (`min_views` tracked since the keyframe was started), unless fewer than this fraction
-    /// are. Between the two the new keyframe waits for those frames: installed at
-    /// the first sign of slipping, with the mapper behind and unadjusted, its map keeps ~55 %
-    /// inliers, the next keyframe is then needed at once and installed the same way, and a fast
-    /// lap went on with no keyframe adjusted for seconds while the maps shrank (demo seed 9 with
-    /// the adjustments 3 frames late, as in real time: none adjusted from 11.7 to 16.8 s, maps
-    /// −9 to −16 %, diverged). With adjustments at once (offline by default) the first sign of
-    /// slipping installs (waiting there too was better on the demo, median 2.7 → 2.0 cm, but
-    /// lost seed 23 and made S-V101 worse: README, *Keyframes installed unadjusted*). A
-    /// value at or above `urgent_inlier_ratio` restores installing at the first sign of slipping.
+    /// (`min_views` tracked since the keyframe was started), unless fewer than this fraction are.
+    /// Between the two the new keyframe waits for those frames: installed at the first sign of
+    /// slipping, with the mapper behind and unadjusted, its map keeps ~55 % inliers, the next
+    /// keyframe is then needed at once and installed the same way, and a fast lap went on with no
+    /// keyframe adjusted for seconds while the maps shrank (demo seed 9 with the adjustments 3
+    /// frames late, as in real time: none adjusted from 11.7 to 16.8 s, maps −9 to −16 %,
+    /// diverged). With adjustments at once (offline by default) the first sign of slipping installs
+    /// (waiting there too was better on the demo, median 2.7 → 2.0 cm, but lost seed 23 and made
+    /// S-V101 worse: docs/odometry-log.md, *Keyframes installed unadjusted*). A value at or above
+    /// `urgent_inlier_ratio` restores installing at the first sign of slipping.
     pub urgent_unadjusted_inlier_ratio: f64,
     /// The first keyframe is tracked only once the camera has moved this fraction of the map's
     /// median depth from it (the IMU-measured baseline that makes the first depths metric).
@@ -201,7 +201,7 @@ pub struct BootstrapConfig {
     /// loss, m/s (0 = not refined: the paper's bootstrap by dead reckoning alone). Off by
     /// default: offline it turns the demo's covered-lens rebuilds that diverged into 4–22 cm,
     /// but with real-time latency the refined first map arrives when the vehicle has left its
-    /// view (README, *A first map started in flight*).
+    /// view (docs/odometry-log.md, *A first map started in flight*).
     pub reinit_velocity_std_m_s: f64,
     /// Prior standard deviation of the dead reckoning's world acceleration error, m/s².
     pub takeoff_accel_std_m_s2: f64,
