@@ -571,7 +571,7 @@ impl SemidenseKeyframe {
             Some(r) if gain < 1.0 => r.powf(gain - 1.0).clamp(0.8, 1.25),
             _ => 1.0,
         };
-        for (st, e) in self.states.iter_mut().zip(&self.pending) {
+        let fuse = |(st, e): (&mut PixelState, &Option<Estimate>)| {
             if let Some(e) = e {
                 let e = Estimate {
                     rho: e.rho * factor,
@@ -579,6 +579,14 @@ impl SemidenseKeyframe {
                 };
                 st.insert(e, cfg);
             }
+        };
+        if cfg.parallel {
+            self.states
+                .par_iter_mut()
+                .zip(self.pending.par_iter())
+                .for_each(fuse);
+        } else {
+            self.states.iter_mut().zip(&self.pending).for_each(fuse);
         }
         stats
     }
