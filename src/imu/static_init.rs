@@ -243,6 +243,13 @@ pub struct StaticEstimate {
     /// Standard error of the gravity direction from the scatter of the block means (conservative;
     /// excludes the accelerometer-bias error of the module docs), rad.
     pub tilt_sigma_rad: f64,
+    /// Effective white-noise density of the gyro at rest: the scatter of the block means times
+    /// √(block duration), mean over the axes — rotor vibration included, what the estimator's
+    /// IMU noise model meets in flight (the datasheet's `gyroscope_noise_density` is the floor),
+    /// rad/s/√Hz. 0 with fewer than two blocks.
+    pub gyro_density_rad_s_sqrt_hz: f64,
+    /// The same for the accelerometer, m/s²/√Hz.
+    pub accel_density_m_s2_sqrt_hz: f64,
     /// First sample of the static period.
     pub t_start: TimeNs,
     /// Last sample included in the estimate.
@@ -476,6 +483,13 @@ impl Accum {
         let blocks = self.gyro_blocks.n as f64;
         let sem = |m: &Moments<3>| m.std() / blocks.sqrt();
         let gyro_floor = noise.gyro_noise_density / span_s.sqrt();
+        let density = |m: &Moments<3>| {
+            if m.n < 2 {
+                return 0.0;
+            }
+            let block_s = span_s / blocks;
+            m.std().mean() * block_s.sqrt()
+        };
         let accel_norm = self.accel.mean.norm();
         let accel_floor = std::f64::consts::SQRT_2 * noise.accel_noise_density / span_s.sqrt();
         Some(StaticEstimate {
@@ -488,6 +502,8 @@ impl Accum {
             accel_norm_m_s2: accel_norm,
             accel_norm_std_m_s2: self.accel_norm.std()[0],
             tilt_sigma_rad: sem(&self.accel_blocks).norm().max(accel_floor) / accel_norm,
+            gyro_density_rad_s_sqrt_hz: density(&self.gyro_blocks),
+            accel_density_m_s2_sqrt_hz: density(&self.accel_blocks),
             t_start: self.t_start,
             t_end: self.t_end,
             num_samples: self.gyro.n as usize,
@@ -965,6 +981,42 @@ mod tests {
 
     fn tilted() -> UnitQuaternion<f64> {
         UnitQuaternion::from_euler_angles(5f64.to_radians(), -8f64.to_radians(), 0.5)
+    }
+
+    #[test]
+    fn the_noise_density_at_rest_is_the_white_noise_and_grows_with_vibration() {
+        // 10 s at rest (100 blocks of 0.1 s), white noise only: the datasheet's densities come
+        // back…
+        let noise = ImuNoise::euroc_adis16448();
+        let estimate = |gyro_vib_rad_s: f64, accel_vib_m_s2: f64| {
+            let mut imu = SynthImu::new(7, tilted(), Vector3::zeros());
+            imu.gyro_vib_rad_s = gyro_vib_rad_s;
+            imu.accel_vib_m_s2 = accel_vib_m_s2;
+            let mut det = detector();
+            for k in 0..2000 {
+                det.push(&imu.sample(k));
+            }
+            *det.estimate().unwrap()
+        };
+        let quiet = estimate(0.0, 0.0);
+        let g = quiet.gyro_density_rad_s_sqrt_hz / noise.gyro_noise_density;
+        let a = quiet.accel_density_m_s2_sqrt_hz / noise.accel_noise_density;
+        assert!((0.75..1.25).contains(&g), "gyro {g} x datasheet");
+        assert!((0.75..1.25).contains(&a), "accel {a} x datasheet");
+        // …and the rotor sinusoid, aliased into the block means, raises them above it.
+        let shaking = estimate(0.1, 1.0);
+        assert!(
+            shaking.gyro_density_rad_s_sqrt_hz > 1.5 * quiet.gyro_density_rad_s_sqrt_hz,
+            "{} vs {}",
+            shaking.gyro_density_rad_s_sqrt_hz,
+            quiet.gyro_density_rad_s_sqrt_hz
+        );
+        assert!(
+            shaking.accel_density_m_s2_sqrt_hz > 1.5 * quiet.accel_density_m_s2_sqrt_hz,
+            "{} vs {}",
+            shaking.accel_density_m_s2_sqrt_hz,
+            quiet.accel_density_m_s2_sqrt_hz
+        );
     }
 
     #[test]

@@ -69,6 +69,13 @@ pub struct ReplayReport {
     pub phases: BTreeMap<String, usize>,
     /// From the (back-dated) motion onset to the first frame tracked against a map, s.
     pub init_time_s: Option<f64>,
+    /// The IMU's effective white-noise density on the pad before the take-off (block means'
+    /// scatter, rotor vibration included) and its ratio to `sensor.yaml`'s: what the fixed
+    /// `[tracking]` / `[window] imu_noise_scale` stands for.
+    pub rest_gyro_density_rad_s_sqrt_hz: Option<f64>,
+    pub rest_accel_density_m_s2_sqrt_hz: Option<f64>,
+    pub rest_gyro_density_ratio: Option<f64>,
+    pub rest_accel_density_ratio: Option<f64>,
     /// Re-initialisations after tracking loss.
     pub resets: u32,
     /// Of `resets`, losses of the image (a covered lens) that resumed tracking on the keyframe
@@ -284,6 +291,16 @@ impl ReplayReport {
             realtime,
             frames_waiting: out.frames_waiting,
             phases,
+            rest_gyro_density_rad_s_sqrt_hz: out
+                .odometry
+                .rest_imu_density
+                .map(|d| d.gyro_rad_s_sqrt_hz),
+            rest_accel_density_m_s2_sqrt_hz: out
+                .odometry
+                .rest_imu_density
+                .map(|d| d.accel_m_s2_sqrt_hz),
+            rest_gyro_density_ratio: out.odometry.rest_imu_density.map(|d| d.gyro_ratio),
+            rest_accel_density_ratio: out.odometry.rest_imu_density.map(|d| d.accel_ratio),
             init_time_s: match (out.odometry.onset_t, out.odometry.tracking_since) {
                 (Some(a), Some(b)) => Some(b.secs_since(a)),
                 _ => None,
@@ -485,6 +502,20 @@ impl ReplayReport {
         }
         if self.frames_waiting > 0 {
             row("frames before rest", self.frames_waiting.to_string());
+        }
+        if let (Some(g), Some(a), Some(gr), Some(ar)) = (
+            self.rest_gyro_density_rad_s_sqrt_hz,
+            self.rest_accel_density_m_s2_sqrt_hz,
+            self.rest_gyro_density_ratio,
+            self.rest_accel_density_ratio,
+        ) {
+            row(
+                "IMU noise at rest",
+                format!(
+                    "gyro {g:.2e} rad/s/√Hz ({gr:.1}× sensor.yaml), accel {a:.2e} m/s²/√Hz \
+                     ({ar:.1}×)"
+                ),
+            );
         }
         if let Some(s) = self.init_time_s {
             row("init after onset", format!("{s:.2} s"));

@@ -367,6 +367,10 @@ fn textured_pyramid(cam: &CameraModel) -> Pyramid {
 pub struct OdometryStats {
     /// Back-dated motion onset of the first take-off.
     pub onset_t: Option<TimeNs>,
+    /// The IMU's effective white-noise density on the pad before the first take-off (rotor
+    /// vibration included; [`StaticEstimate::gyro_density_rad_s_sqrt_hz`]) and its ratio to the
+    /// rig's `sensor.yaml` density: gyro rad/s/√Hz, accelerometer m/s²/√Hz.
+    pub rest_imu_density: Option<RestImuDensity>,
     /// Time of the first tracked frame after the onset.
     pub tracking_since: Option<TimeNs>,
     pub resets: u32,
@@ -433,6 +437,16 @@ pub struct OdometryStats {
     pub vignette_corrected: bool,
     /// Pixels clipped at 255 by the vignetting correction (bright texture in the corners).
     pub vignette_saturated_px: u64,
+}
+
+/// The IMU's noise measured at rest (see [`OdometryStats::rest_imu_density`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RestImuDensity {
+    pub gyro_rad_s_sqrt_hz: f64,
+    pub accel_m_s2_sqrt_hz: f64,
+    /// Measured over `sensor.yaml`'s density.
+    pub gyro_ratio: f64,
+    pub accel_ratio: f64,
 }
 
 /// At most this many frames are tracked again when a keyframe adjustment comes back late (more:
@@ -769,6 +783,15 @@ impl Odometry {
                         .find(|e| e.t_end <= t_rest && e.t_start == o.estimate.t_start)
                         .copied()
                         .unwrap_or(o.estimate);
+                    if self.stats.rest_imu_density.is_none() {
+                        let n = &self.rig.noise;
+                        self.stats.rest_imu_density = Some(RestImuDensity {
+                            gyro_rad_s_sqrt_hz: e.gyro_density_rad_s_sqrt_hz,
+                            accel_m_s2_sqrt_hz: e.accel_density_m_s2_sqrt_hz,
+                            gyro_ratio: e.gyro_density_rad_s_sqrt_hz / n.gyro_noise_density,
+                            accel_ratio: e.accel_density_m_s2_sqrt_hz / n.accel_noise_density,
+                        });
+                    }
                     let x = rest_state_from(&e, t_rest);
                     let cov = *self.tracker.covariance();
                     self.tracker.reset_state(x, cov);
