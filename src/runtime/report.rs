@@ -299,8 +299,17 @@ impl ReplayReport {
                 .odometry
                 .rest_imu_density
                 .map(|d| d.accel_m_s2_sqrt_hz),
-            rest_gyro_density_ratio: out.odometry.rest_imu_density.map(|d| d.gyro_ratio),
-            rest_accel_density_ratio: out.odometry.rest_imu_density.map(|d| d.accel_ratio),
+            // (`sensor.yaml` with a zero density would make these infinite: left out then.)
+            rest_gyro_density_ratio: out
+                .odometry
+                .rest_imu_density
+                .map(|d| d.gyro_ratio)
+                .filter(|r| r.is_finite()),
+            rest_accel_density_ratio: out
+                .odometry
+                .rest_imu_density
+                .map(|d| d.accel_ratio)
+                .filter(|r| r.is_finite()),
             init_time_s: match (out.odometry.onset_t, out.odometry.tracking_since) {
                 (Some(a), Some(b)) => Some(b.secs_since(a)),
                 _ => None,
