@@ -192,13 +192,12 @@ impl ReplayReport {
         let pct = |p: f64| percentile(&ms, p);
         let map_ms = sorted(out.mapping.job_times_s.iter().map(|t| t * 1e3));
         let imu_scale = sorted(out.odometry.imu_scale.iter().map(|e| e.scale));
-        let imu_scale_pct = |p: f64| (!imu_scale.is_empty()).then(|| percentile(&imu_scale, p));
+        let imu_scale_pct = |p: f64| percentile_if_any(&imu_scale, p);
         let view_scale = sorted(out.mapping.view_scales.iter().map(|&s| s as f64));
-        let view_scale_pct = |p: f64| (!view_scale.is_empty()).then(|| percentile(&view_scale, p));
+        let view_scale_pct = |p: f64| percentile_if_any(&view_scale, p);
         let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
         let window_ratio = sorted(out.odometry.window_baseline_ratios.iter().copied());
-        let window_ratio_pct =
-            |p: f64| (!window_ratio.is_empty()).then(|| percentile(&window_ratio, p));
+        let window_ratio_pct = |p: f64| percentile_if_any(&window_ratio, p);
         let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
         let map_lat = sorted(
             out.odometry
@@ -615,24 +614,22 @@ impl ReplayReport {
             );
         }
         if self.window_solves > 0 {
-            row(
-                "keyframe window",
-                match (
+            row("keyframe window", {
+                let mut text = format!(
+                    "{} solves, ms p50/max {:.2} / {:.2}",
+                    self.window_solves, self.window_ms_p50, self.window_ms_max
+                );
+                if let (Some(p10), Some(p50), Some(p90)) = (
                     self.window_baseline_ratio_p10,
                     self.window_baseline_ratio_p50,
                     self.window_baseline_ratio_p90,
                 ) {
-                    (Some(p10), Some(p50), Some(p90)) => format!(
-                        "{} solves, ms p50/max {:.2} / {:.2}, baseline solved/tracked \
-                         p10/p50/p90 {:.3} / {:.3} / {:.3}",
-                        self.window_solves, self.window_ms_p50, self.window_ms_max, p10, p50, p90
-                    ),
-                    _ => format!(
-                        "{} solves, ms p50/max {:.2} / {:.2}",
-                        self.window_solves, self.window_ms_p50, self.window_ms_max
-                    ),
-                },
-            );
+                    text += &format!(
+                        ", baseline solved/tracked p10/p50/p90 {p10:.3} / {p50:.3} / {p90:.3}"
+                    );
+                }
+                text
+            });
         }
         if self.keyframe_install_latency_frames_max > 0.0 {
             row(
@@ -773,4 +770,10 @@ pub fn frames_csv(out: &ReplayOutput) -> String {
         ));
     }
     s
+}
+
+/// [`percentile`] of ascending `sorted`, `None` when there is nothing to take it of (where 0
+/// would read as a measurement).
+fn percentile_if_any(sorted: &[f64], p: f64) -> Option<f64> {
+    (!sorted.is_empty()).then(|| percentile(sorted, p))
 }

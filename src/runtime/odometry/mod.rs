@@ -1245,7 +1245,9 @@ impl Odometry {
             return None;
         }
         let correction = pose_of(&x_new) * pose_of(&old).inverse();
-        if let Some(xk) = self.window.state(newest) {
+        // The previous newest keyframe as solved.
+        let xk = self.window.state(newest).copied();
+        if let Some(xk) = &xk {
             let before_m = (old.nav.p_world_m - x_prev.nav.p_world_m).norm();
             let after_m = (x_new.nav.p_world_m - xk.nav.p_world_m).norm();
             if before_m > 0.01 {
@@ -1254,7 +1256,7 @@ impl Odometry {
         }
         let cov = *self.tracker.covariance();
         self.tracker.reset_state(x_new, cov);
-        if let Some(xk) = self.window.state(newest)
+        if let Some(xk) = &xk
             && self.tracker.keyframe().is_some_and(|kf| kf.id == newest)
         {
             self.tracker
