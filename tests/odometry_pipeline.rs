@@ -114,6 +114,57 @@ fn offline_replays_are_identical() {
     }
 }
 
+/// `[bootstrap] rest_imu_noise_factor`: the IMU is weighted from the take-off on by the noise the
+/// pad measured (rotor vibration included) instead of the fixed `imu_noise_scale` — each sensor's
+/// scale is its measured ratio to `sensor.yaml` (at least 1) times the factor, it reaches the
+/// estimate (the trajectory changes) and the take-off stays metric; off, the fixed scale is
+/// reported for both sensors.
+#[test]
+fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
+    let dir = takeoff();
+    let fixed = ReplayOptions::default();
+    let mut measured = ReplayOptions::default();
+    measured.bootstrap.rest_imu_noise_factor = 1.5;
+    let a = replay(&dir, &fixed, &mut |_, _| {}).unwrap();
+    let b = replay(&dir, &measured, &mut |_, _| {}).unwrap();
+    let (da, db) = (
+        a.odometry.rest_imu_density.expect("rest measured"),
+        b.odometry.rest_imu_density.expect("rest measured"),
+    );
+    let scale = fixed.tracker.imu_noise_scale;
+    assert_eq!((da.gyro_scale, da.accel_scale), (scale, scale));
+    // The same rest, measured the same way; the simulator's rotors shake the IMU above its
+    // white noise.
+    assert_eq!(da.gyro_ratio, db.gyro_ratio);
+    assert_eq!(da.accel_ratio, db.accel_ratio);
+    assert!(db.accel_ratio > 1.2, "{}", db.accel_ratio);
+    let expect = |ratio: f64| ratio.max(1.0) * 1.5;
+    assert!((db.gyro_scale - expect(db.gyro_ratio)).abs() < 1e-12);
+    assert!((db.accel_scale - expect(db.accel_ratio)).abs() < 1e-12);
+    assert_ne!(
+        (db.gyro_scale, db.accel_scale),
+        (scale, scale),
+        "a measurement that equals the fixed scale cannot show it is used"
+    );
+    let (ta, tb) = (trajectory(&a), trajectory(&b));
+    assert!(
+        ta.poses.iter().zip(&tb.poses).any(|(p, q)| p != q),
+        "the measured noise did not reach the estimate"
+    );
+    let e = eval_against_truth(&dir, &b);
+    println!(
+        "rest ratios gyro {:.2} accel {:.2} -> scales {:.2} / {:.2}; take-off ATE {:.3} m, scale error {:.1} %",
+        db.gyro_ratio,
+        db.accel_ratio,
+        db.gyro_scale,
+        db.accel_scale,
+        e.ate_rmse_m,
+        e.scale_error_pct
+    );
+    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
+    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+}
+
 /// The take-off refinement and the in-flight keyframe adjustment run on a thread of their own;
 /// offline their results are applied a fixed number of frames after they were started (as they
 /// would arrive in real time): the take-off's frames dead-reckoned meanwhile are re-predicted, the
@@ -383,6 +434,33 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
 /// ~60 in real time, and take seconds). Without the cap the second pass is still out when these
 /// 5 s end (measured: 53 frames initialising, none tracked); in `vidslam replay --realtime` of
 /// the demo, tracking began 20 s after the take-off.
+/// A take-off with more frames than a refinement pass takes (`takeoff_max_pass_frames`; a slow
+/// take-off waits longer for its baseline) is refined over an evenly spaced subset of them, not
+/// left at its dead-reckoned scale (until 2026-11-28 it got no pass at all).
+#[test]
+fn a_takeoff_longer_than_a_pass_is_refined_over_a_subset_of_its_frames() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions::default();
+    opts.bootstrap.takeoff_max_pass_frames = 6;
+    let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let o = &out.odometry;
+    println!(
+        "take-off passes: scale corrections {:?}, views re-posed {:?}",
+        o.takeoff_scales, o.takeoff_pass_views
+    );
+    assert_eq!(o.takeoff_scales.len(), 2, "both passes applied");
+    assert_eq!(o.takeoff_pass_views, vec![6, 6]);
+    assert!(o.tracking_since.is_some());
+    assert!(out.frames.iter().all(|r| r.state.is_finite()));
+    let e = eval_against_truth(&dir, &out);
+    println!(
+        "take-off refined over 6 frames: ATE {:.3} m, scale error {:.1} %",
+        e.ate_rmse_m, e.scale_error_pct
+    );
+    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
+    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+}
+
 #[test]
 fn a_late_takeoff_refinement_pass_still_starts_tracking() {
     let dir = takeoff();

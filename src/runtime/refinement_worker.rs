@@ -51,6 +51,9 @@ pub struct KeyframeJob {
     pub pyramid: Pyramid,
     /// IMU samples from before the keyframe to after its last view.
     pub imu: Vec<ImuSample>,
+    /// The IMU noise to integrate them with (the odometry's, which the pad's measurement may
+    /// have replaced since the thread started).
+    pub noise: ImuNoise,
     /// The depths are not held to the mapper's (`depth_rel_std` not applied): their scale is what
     /// is in doubt (a keyframe tracked with guessed depths).
     pub free_depths: bool,
@@ -105,7 +108,6 @@ pub struct ReadyKeyframe {
 pub struct RefineSettings {
     pub camera: CameraModel,
     pub t_body_cam: Isometry3<f64>,
-    pub noise: ImuNoise,
     pub tracking: TrackerConfig,
     pub keyframe_bundle: KeyframeBundleConfig,
     /// The thread's nice value is raised by this much ([`super::thread_priority`]).
@@ -216,7 +218,7 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyfram
         &job.pyramid,
         &job.imu,
         s.t_body_cam,
-        s.noise,
+        job.noise,
         s.tracking.imu_noise_scale,
         s.tracking.gradient_weight_gray_px,
         cfg,

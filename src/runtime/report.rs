@@ -48,6 +48,9 @@ pub struct ReplayReport {
     pub takeoff_scale_corrections: Vec<f64>,
     /// Wall time of each take-off refinement pass, ms (the frames meanwhile are IMU-only).
     pub takeoff_refinement_ms: Vec<f64>,
+    /// Frames each take-off refinement pass re-posed (at most `[bootstrap]
+    /// takeoff_max_pass_frames`, evenly spaced over the take-off).
+    pub takeoff_pass_views: Vec<usize>,
     pub tracking_ms_p50: f64,
     pub tracking_ms_p99: f64,
     pub tracking_ms_max: f64,
@@ -76,6 +79,11 @@ pub struct ReplayReport {
     pub rest_accel_density_m_s2_sqrt_hz: Option<f64>,
     pub rest_gyro_density_ratio: Option<f64>,
     pub rest_accel_density_ratio: Option<f64>,
+    /// The scales of `sensor.yaml`'s densities the tracker weighted the IMU with after the
+    /// take-off: the ratios above times `[bootstrap] rest_imu_noise_factor`, or the fixed
+    /// `[tracking] imu_noise_scale` when that is off.
+    pub imu_gyro_noise_scale: Option<f64>,
+    pub imu_accel_noise_scale: Option<f64>,
     /// Re-initialisations after tracking loss.
     pub resets: u32,
     /// Of `resets`, losses of the image (a covered lens) that resumed tracking on the keyframe
@@ -266,6 +274,7 @@ impl ReplayReport {
                 .iter()
                 .map(|s| s * 1e3)
                 .collect(),
+            takeoff_pass_views: out.odometry.takeoff_pass_views.clone(),
             tracking_ms_p50: pct(50.0),
             tracking_ms_p99: pct(99.0),
             tracking_ms_max: ms.last().copied().unwrap_or(0.0),
@@ -309,6 +318,8 @@ impl ReplayReport {
                 .rest_imu_density
                 .map(|d| d.accel_ratio)
                 .filter(|r| r.is_finite()),
+            imu_gyro_noise_scale: out.odometry.rest_imu_density.map(|d| d.gyro_scale),
+            imu_accel_noise_scale: out.odometry.rest_imu_density.map(|d| d.accel_scale),
             init_time_s: match (out.odometry.onset_t, out.odometry.tracking_since) {
                 (Some(a), Some(b)) => Some(b.secs_since(a)),
                 _ => None,
@@ -492,6 +503,12 @@ impl ReplayReport {
                 "take-off refinement ms",
                 joined(&self.takeoff_refinement_ms, 0),
             );
+            let views: Vec<String> = self
+                .takeoff_pass_views
+                .iter()
+                .map(|n| n.to_string())
+                .collect();
+            row("take-off pass views", views.join(" "));
         }
         row(
             "tracking ms p50/p99/max",
@@ -523,6 +540,12 @@ impl ReplayReport {
                     "gyro {g:.2e} rad/s/√Hz ({gr:.1}× sensor.yaml), accel {a:.2e} m/s²/√Hz \
                      ({ar:.1}×)"
                 ),
+            );
+        }
+        if let (Some(g), Some(a)) = (self.imu_gyro_noise_scale, self.imu_accel_noise_scale) {
+            row(
+                "IMU noise weighted",
+                format!("gyro {g:.2}×, accel {a:.2}× sensor.yaml"),
             );
         }
         if let Some(s) = self.init_time_s {

@@ -189,10 +189,13 @@ pub struct BootstrapConfig {
     /// started (0 = before the next frame): offline exactly, in real time at the earliest (later
     /// if it takes longer). Until then the frames are dead-reckoned.
     pub takeoff_lag_frames: u64,
-    /// A refinement pass is not started over more take-off frames than this (the first map is
-    /// then installed as it is): a pass costs ~0.1 s per frame, and in real time the second
+    /// A refinement pass re-poses at most this many of the take-off's frames (evenly spaced, the
+    /// last one included; the IMU is preintegrated across the others), and the first map is
+    /// triangulated again from those: a pass costs ~0.1 s per frame, and in real time the second
     /// pass, started once the first is back and the map rebuilt, would cover 60 frames and take
-    /// longer than the first map may wait (offline the passes cover 13–20 frames).
+    /// longer than the first map may wait (offline the passes cover 13–33 frames). Until
+    /// 2026-11-28 a take-off with more frames got no pass at all: S-V101 seeds 5 and 8, which
+    /// took 1.6 s to their first map, kept its dead-reckoned scale (+16 / +25 %).
     pub takeoff_max_pass_frames: usize,
     /// Prior standard deviation of the velocity at the rest state, m/s.
     pub takeoff_velocity_std_m_s: f64,
@@ -232,6 +235,14 @@ pub struct BootstrapConfig {
     pub zupt_max_speed_m_s: f64,
     /// Standard deviation of the zero velocity, m/s.
     pub zupt_velocity_std_m_s: f64,
+    /// The IMU's white noise as measured on the pad replaces `[tracking] imu_noise_scale`'s fixed
+    /// inflation of `sensor.yaml`'s densities from the take-off on (0 = off: the fixed scale
+    /// throughout). Each sensor's ratio of its rest density to `sensor.yaml`'s (at least 1,
+    /// [`OdometryStats::rest_imu_density`]) times this becomes its scale in the tracker; the
+    /// window, the take-off and the keyframe adjustments keep their scales' ratios to the
+    /// tracker's. Rotor vibration on the pad is what the fixed 3 stands for, and it is measured
+    /// there: 1.1–2.3 × on the demo flights, 5.9 / 6.5 × on S-V101's real IMU.
+    pub rest_imu_noise_factor: f64,
 }
 
 /// How the take-off refinement re-poses the first map's views.
@@ -288,6 +299,7 @@ impl Default for BootstrapConfig {
             takeoff_bundle_smoothness_rel_std: 0.1,
             zupt_max_speed_m_s: 0.1,
             zupt_velocity_std_m_s: 0.005,
+            rest_imu_noise_factor: 0.0,
         }
     }
 }
@@ -397,6 +409,9 @@ pub struct OdometryStats {
     pub takeoff_scales: Vec<f64>,
     /// Wall time of each applied take-off refinement pass, s.
     pub takeoff_refinement_s: Vec<f64>,
+    /// Frames each applied take-off refinement pass re-posed (at most `[bootstrap]
+    /// takeoff_max_pass_frames` of the take-off's, evenly spaced).
+    pub takeoff_pass_views: Vec<usize>,
     /// Wall time of each in-flight keyframe adjustment (`[keyframe_bundle]`), s.
     pub keyframe_bundle_s: Vec<f64>,
     /// Median relative inverse-depth change of each in-flight keyframe adjustment.
@@ -447,6 +462,11 @@ pub struct RestImuDensity {
     /// Measured over `sensor.yaml`'s density.
     pub gyro_ratio: f64,
     pub accel_ratio: f64,
+    /// The scales of `sensor.yaml`'s densities the tracker weights the IMU with from the take-off
+    /// on: the ratios above times `[bootstrap] rest_imu_noise_factor` (at least its ratio of 1),
+    /// or `[tracking] imu_noise_scale` for both when that is off.
+    pub gyro_scale: f64,
+    pub accel_scale: f64,
 }
 
 /// At most this many frames are tracked again when a keyframe adjustment comes back late (more:
@@ -600,6 +620,10 @@ pub struct Odometry {
     keyframe_jump: bool,
     /// Per-pixel `1 / V` of the rig's vignetting (`[tracking] correct_vignetting`).
     vignette_gain: Option<Vec<f32>>,
+    /// The IMU noise the preintegrations are integrated with: `rig.noise`, its white densities
+    /// rescaled at the take-off to the ones measured on the pad (`[bootstrap]
+    /// rest_imu_noise_factor`) over the tracker's `imu_noise_scale`, which multiplies them again.
+    imu_noise: ImuNoise,
 }
 
 impl Odometry {
@@ -633,7 +657,6 @@ impl Odometry {
                 RefinementThread::spawn(RefineSettings {
                     camera: rig.camera,
                     t_body_cam: rig.t_body_cam,
-                    noise: rig.noise,
                     tracking: cfg.tracking.clone(),
                     keyframe_bundle: cfg.keyframe_bundle.clone(),
                     nice_increment: cfg.bootstrap.refinement_nice,
@@ -699,6 +722,7 @@ impl Odometry {
             mapper_from_world: Isometry3::identity(),
             mapper_kf_pose: None,
             vignette_gain,
+            imu_noise: rig.noise,
             cfg,
             rig,
         }
@@ -784,13 +808,7 @@ impl Odometry {
                         .copied()
                         .unwrap_or(o.estimate);
                     if self.stats.rest_imu_density.is_none() {
-                        let n = &self.rig.noise;
-                        self.stats.rest_imu_density = Some(RestImuDensity {
-                            gyro_rad_s_sqrt_hz: e.gyro_density_rad_s_sqrt_hz,
-                            accel_m_s2_sqrt_hz: e.accel_density_m_s2_sqrt_hz,
-                            gyro_ratio: e.gyro_density_rad_s_sqrt_hz / n.gyro_noise_density,
-                            accel_ratio: e.accel_density_m_s2_sqrt_hz / n.accel_noise_density,
-                        });
+                        self.stats.rest_imu_density = Some(self.noise_from_rest(&e));
                     }
                     let x = rest_state_from(&e, t_rest);
                     let cov = *self.tracker.covariance();
@@ -1075,11 +1093,42 @@ impl Odometry {
         self.imu_only_result(t)
     }
 
+    /// The IMU's noise measured on the pad (`e`), and from now on the white densities of
+    /// [`Self::imu_noise`] from it when `[bootstrap] rest_imu_noise_factor` is on: each sensor's
+    /// measured ratio to `sensor.yaml` (at least 1) times the factor becomes its effective scale,
+    /// in place of `[tracking] imu_noise_scale` (by which the tracker multiplies the densities).
+    fn noise_from_rest(&mut self, e: &StaticEstimate) -> RestImuDensity {
+        let n = &self.rig.noise;
+        let gyro_ratio = e.gyro_density_rad_s_sqrt_hz / n.gyro_noise_density;
+        let accel_ratio = e.accel_density_m_s2_sqrt_hz / n.accel_noise_density;
+        let fixed = self.cfg.tracking.imu_noise_scale;
+        let factor = self.cfg.bootstrap.rest_imu_noise_factor;
+        let measured = |ratio: f64| {
+            (factor > 0.0 && ratio.is_finite() && fixed > 0.0).then(|| ratio.max(1.0) * factor)
+        };
+        let (gyro_scale, accel_scale) = match (measured(gyro_ratio), measured(accel_ratio)) {
+            (Some(g), Some(a)) => {
+                self.imu_noise.gyro_noise_density = n.gyro_noise_density * g / fixed;
+                self.imu_noise.accel_noise_density = n.accel_noise_density * a / fixed;
+                (g, a)
+            }
+            _ => (fixed, fixed),
+        };
+        RestImuDensity {
+            gyro_rad_s_sqrt_hz: e.gyro_density_rad_s_sqrt_hz,
+            accel_m_s2_sqrt_hz: e.accel_density_m_s2_sqrt_hz,
+            gyro_ratio,
+            accel_ratio,
+            gyro_scale,
+            accel_scale,
+        }
+    }
+
     fn track(&mut self, t: TimeNs, image: &Image<u8>) -> TrackResult {
         let t0 = self.last_t.unwrap_or(t);
         let mut pre = Preintegration::new(t0, self.tracker.state().bias);
         // `integrate` finds the samples bracketing the interval itself.
-        pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
+        pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
         self.last_t = Some(t);
         let x0 = *self.tracker.state();
         let r = self.tracker.track(t, image, &pre);
@@ -1227,7 +1276,7 @@ impl Odometry {
         };
         let x_prev = *self.window.newest()?.1;
         let mut pre = Preintegration::new(x_prev.nav.t, x_prev.bias);
-        pre.integrate(self.imu.make_contiguous(), t, Some(&self.rig.noise));
+        pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
         let old = result.state;
         self.window.push(id, old, pre, visual);
         let started = std::time::Instant::now();

@@ -14,12 +14,14 @@ impl Odometry {
         let Some(tk) = self.takeoff.as_ref().filter(|_| self.refiner.is_some()) else {
             return false;
         };
-        if tk.keyframe_id != s.keyframe_id
-            || tk.passes >= b.refine_takeoff_passes
-            || tk.frames.len() > b.takeoff_max_pass_frames
-        {
+        if tk.keyframe_id != s.keyframe_id || tk.passes >= b.refine_takeoff_passes {
             return false; // done
         }
+        // A slow take-off waits longer for its baseline: the pass re-poses an evenly spaced
+        // subset of its frames (the IMU preintegrated across the others) and the first map is
+        // triangulated again from those.
+        let mut rec = tk.clone();
+        rec.frames = evenly_spaced(&tk.frames, b.takeoff_max_pass_frames);
         let imu = imu_between(self.imu.make_contiguous(), tk.rest.nav.t, None);
         let velocity_std_m_s = if tk.in_flight {
             b.reinit_velocity_std_m_s
@@ -29,14 +31,14 @@ impl Odometry {
         self.refine_seq += 1;
         let job = RefineJob::Takeoff(Box::new(TakeoffJob {
             seq: self.refine_seq,
-            rec: tk.clone(),
+            rec,
             kf: kf.clone(),
             imu,
             rig: TakeoffRig {
                 tracking: self.cfg.tracking.clone(),
                 camera: self.rig.camera,
                 t_body_cam: self.rig.t_body_cam,
-                noise: self.rig.noise,
+                noise: self.imu_noise,
                 prior: AlignmentPrior {
                     velocity_std_m_s,
                     accel_std_m_s2: b.takeoff_accel_std_m_s2,
@@ -109,6 +111,7 @@ impl Odometry {
             kf: kf.clone(),
             pyramid,
             imu,
+            noise: self.imu_noise,
             free_depths: tracked,
         }));
         let kind = PendingKind::Keyframe {
@@ -402,6 +405,7 @@ impl Odometry {
         };
         // The tracker continues from the refined state on the IMU until the new map is ready.
         let mut x = r.last;
+        let pass_views = r.views.len();
         let mut views = r.views;
         for f in tk.frames.iter().skip(frames_sent) {
             x = self.dead_reckon(&x, f.t);
@@ -428,6 +432,7 @@ impl Odometry {
         self.init_started = self.last_t;
         self.stats.takeoff_scales.push(r.scale);
         self.stats.takeoff_refinement_s.push(time_s);
+        self.stats.takeoff_pass_views.push(pass_views);
         self.takeoff = Some(tk);
     }
 
