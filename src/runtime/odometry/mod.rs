@@ -189,13 +189,15 @@ pub struct BootstrapConfig {
     /// started (0 = before the next frame): offline exactly, in real time at the earliest (later
     /// if it takes longer). Until then the frames are dead-reckoned.
     pub takeoff_lag_frames: u64,
-    /// A refinement pass re-poses at most this many of the take-off's frames (evenly spaced, the
-    /// last one included; the IMU is preintegrated across the others), and the first map is
-    /// triangulated again from those: a pass costs ~0.1 s per frame, and in real time the second
-    /// pass, started once the first is back and the map rebuilt, would cover 60 frames and take
-    /// longer than the first map may wait (offline the passes cover 13–33 frames). Until
-    /// 2026-11-28 a take-off with more frames got no pass at all: S-V101 seeds 5 and 8, which
-    /// took 1.6 s to their first map, kept its dead-reckoned scale (+16 / +25 %).
+    /// The first refinement pass re-poses at most this many of the take-off's frames (evenly
+    /// spaced, the last one included; the IMU is preintegrated across the others), and the first
+    /// map is triangulated again from those; a further pass is not started over more frames
+    /// than this (the first map is then installed): in real time each pass is another ~0.7 s of
+    /// dead reckoning before the first map is tracked. The demo's take-offs have 13–20 frames,
+    /// S-V101's slow ones more than 30, in real time 60 and more. Until 2026-11-28 a take-off
+    /// with more frames than this got no pass at all: S-V101 seeds 5 and 8, 1.6 s from the onset
+    /// to their first map, kept its dead-reckoned scale (+16 / +25 %; docs/odometry-log.md,
+    /// *Slow take-offs got no take-off refinement*).
     pub takeoff_max_pass_frames: usize,
     /// Prior standard deviation of the velocity at the rest state, m/s.
     pub takeoff_velocity_std_m_s: f64,

@@ -14,10 +14,15 @@ impl Odometry {
         let Some(tk) = self.takeoff.as_ref().filter(|_| self.refiner.is_some()) else {
             return false;
         };
-        if tk.keyframe_id != s.keyframe_id || tk.passes >= b.refine_takeoff_passes {
+        // A further pass over more frames than a pass takes is not started: the first map has
+        // waited long enough (in real time each pass is another ~0.7 s of dead reckoning).
+        if tk.keyframe_id != s.keyframe_id
+            || tk.passes >= b.refine_takeoff_passes
+            || (tk.passes > 0 && tk.frames.len() > b.takeoff_max_pass_frames)
+        {
             return false; // done
         }
-        // A slow take-off waits longer for its baseline: the pass re-poses an evenly spaced
+        // A slow take-off waits longer for its baseline: its first pass re-poses an evenly spaced
         // subset of its frames (the IMU preintegrated across the others) and the first map is
         // triangulated again from those.
         let mut rec = tk.clone();
