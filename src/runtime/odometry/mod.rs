@@ -243,7 +243,10 @@ pub struct BootstrapConfig {
     /// [`OdometryStats::rest_imu_density`]) times this becomes its scale in the tracker; the
     /// window, the take-off and the keyframe adjustments keep their scales' ratios to the
     /// tracker's. Rotor vibration on the pad is what the fixed 3 stands for, and it is measured
-    /// there: 1.1–2.3 × on the demo flights, 5.9 / 6.5 × on S-V101's real IMU.
+    /// there: 1.1–2.3 × on the demo flights, 5.9 / 6.5 × on S-V101's real IMU. Off by default:
+    /// with 1, demo seeds 1–24 median 2.48 → 1.90 cm but 10 resets instead of 2, and S-V101 seeds
+    /// 2 / 3 lost (3.4 / 8.9 m; docs/odometry-log.md, *The IMU weighted by the noise its pad
+    /// measures*).
     pub rest_imu_noise_factor: f64,
 }
 
@@ -465,8 +468,8 @@ pub struct RestImuDensity {
     pub gyro_ratio: f64,
     pub accel_ratio: f64,
     /// The scales of `sensor.yaml`'s densities the tracker weights the IMU with from the take-off
-    /// on: the ratios above times `[bootstrap] rest_imu_noise_factor` (at least its ratio of 1),
-    /// or `[tracking] imu_noise_scale` for both when that is off.
+    /// on: the ratios above (at least 1) times `[bootstrap] rest_imu_noise_factor`, or
+    /// `[tracking] imu_noise_scale` for both when that is off.
     pub gyro_scale: f64,
     pub accel_scale: f64,
 }
