@@ -43,6 +43,23 @@ fn eval_against_truth(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutpu
     evaluate(&gt, &trajectory(out), &EvalOptions::default()).unwrap()
 }
 
+/// The take-off in `out` was tracked, every state is finite, and it is metric against the
+/// ground truth of `dir` (ATE < 4 cm, scale error < 7 %); prints both figures after `what`.
+fn assert_metric_takeoff(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutput, what: &str) {
+    assert!(
+        out.odometry.tracking_since.is_some(),
+        "{what}: never tracked"
+    );
+    assert!(out.frames.iter().all(|r| r.state.is_finite()));
+    let e = eval_against_truth(dir, out);
+    println!(
+        "{what}: ATE {:.3} m, scale error {:.1} %",
+        e.ate_rmse_m, e.scale_error_pct
+    );
+    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
+    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+}
+
 /// A noise-free render of the built-in flight (all of it, or its first `seconds`) in a fresh
 /// directory named after `name`.
 fn simulate_ideal(name: &str, seconds: Option<f64>) -> PathBuf {
@@ -151,18 +168,11 @@ fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
         ta.poses.iter().zip(&tb.poses).any(|(p, q)| p != q),
         "the measured noise did not reach the estimate"
     );
-    let e = eval_against_truth(&dir, &b);
     println!(
-        "rest ratios gyro {:.2} accel {:.2} -> scales {:.2} / {:.2}; take-off ATE {:.3} m, scale error {:.1} %",
-        db.gyro_ratio,
-        db.accel_ratio,
-        db.gyro_scale,
-        db.accel_scale,
-        e.ate_rmse_m,
-        e.scale_error_pct
+        "rest ratios gyro {:.2} accel {:.2} -> scales {:.2} / {:.2}",
+        db.gyro_ratio, db.accel_ratio, db.gyro_scale, db.accel_scale
     );
-    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
-    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+    assert_metric_takeoff(&dir, &b, "take-off with the measured noise");
 }
 
 /// The take-off refinement and the in-flight keyframe adjustment run on a thread of their own;
@@ -427,13 +437,6 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
     );
 }
 
-/// A take-off refinement pass that comes back late — in real time on 2 cores a pass takes
-/// 1.3–1.5 s, emulated here offline by `takeoff_lag_frames = 30` — must still lead to tracking:
-/// the first map started again from the pass gets its own `max_init_s`, and no pass is started
-/// over more than `takeoff_max_pass_frames` take-off frames (the second one would cover ~45 here,
-/// ~60 in real time, and take seconds). Without the cap the second pass is still out when these
-/// 5 s end (measured: 53 frames initialising, none tracked); in `vidslam replay --realtime` of
-/// the demo, tracking began 20 s after the take-off.
 /// A take-off with more frames than a refinement pass takes (`takeoff_max_pass_frames`; a slow
 /// take-off waits longer for its baseline) gets its first pass over an evenly spaced subset of
 /// them, not left at its dead-reckoned scale (until 2026-11-28 it got no pass at all); a second
@@ -451,17 +454,17 @@ fn a_takeoff_longer_than_a_pass_is_refined_over_a_subset_of_its_frames() {
     );
     assert_eq!(o.takeoff_scales.len(), 1, "the first pass only");
     assert_eq!(o.takeoff_pass_views, vec![6]);
-    assert!(o.tracking_since.is_some());
-    assert!(out.frames.iter().all(|r| r.state.is_finite()));
-    let e = eval_against_truth(&dir, &out);
-    println!(
-        "take-off refined over 6 frames: ATE {:.3} m, scale error {:.1} %",
-        e.ate_rmse_m, e.scale_error_pct
-    );
-    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
-    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+    assert_metric_takeoff(&dir, &out, "take-off refined over 6 frames");
 }
 
+/// A take-off refinement pass that comes back late — in real time on 2 cores a pass takes
+/// 1.3–1.5 s, emulated here offline by `takeoff_lag_frames = 30` — must still lead to tracking:
+/// the first map started again from the pass gets its own `max_init_s`, and no further pass is
+/// started over more than `takeoff_max_pass_frames` take-off frames (the second one would cover
+/// ~45 here, ~60 in real time, and take seconds). Without the cap the second pass is still out
+/// when these 5 s end (measured: 53 frames initialising, none tracked; again 2026-11-28 with the
+/// second pass over a 30-frame subset); in `vidslam replay --realtime` of the demo, tracking
+/// began 20 s after the take-off.
 #[test]
 fn a_late_takeoff_refinement_pass_still_starts_tracking() {
     let dir = takeoff();
@@ -736,13 +739,5 @@ fn takeoff_refinement_passes_keep_a_correct_first_map_scale() {
     println!("take-off scale corrections {scales:?}");
     assert_eq!(scales.len(), 2, "{scales:?}");
     assert!(scales.iter().all(|s| (s - 1.0).abs() < 0.08), "{scales:?}");
-    assert!(out.odometry.tracking_since.is_some());
-    assert!(out.frames.iter().all(|r| r.state.is_finite()));
-    let e = eval_against_truth(&dir, &out);
-    println!(
-        "refined take-off: ATE {:.3} m, scale error {:.1} %",
-        e.ate_rmse_m, e.scale_error_pct
-    );
-    assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
-    assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+    assert_metric_takeoff(&dir, &out, "refined take-off");
 }
