@@ -206,6 +206,7 @@ impl ReplayReport {
         let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
         let window_ratio = sorted(out.odometry.window_baseline_ratios.iter().copied());
         let window_ratio_pct = |p: f64| percentile_if_any(&window_ratio, p);
+        let rest = out.odometry.rest_imu_density;
         let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
         let map_lat = sorted(
             out.odometry
@@ -299,27 +300,13 @@ impl ReplayReport {
             realtime,
             frames_waiting: out.frames_waiting,
             phases,
-            rest_gyro_density_rad_s_sqrt_hz: out
-                .odometry
-                .rest_imu_density
-                .map(|d| d.gyro_rad_s_sqrt_hz),
-            rest_accel_density_m_s2_sqrt_hz: out
-                .odometry
-                .rest_imu_density
-                .map(|d| d.accel_m_s2_sqrt_hz),
+            rest_gyro_density_rad_s_sqrt_hz: rest.map(|d| d.gyro_rad_s_sqrt_hz),
+            rest_accel_density_m_s2_sqrt_hz: rest.map(|d| d.accel_m_s2_sqrt_hz),
             // (`sensor.yaml` with a zero density would make these infinite: left out then.)
-            rest_gyro_density_ratio: out
-                .odometry
-                .rest_imu_density
-                .map(|d| d.gyro_ratio)
-                .filter(|r| r.is_finite()),
-            rest_accel_density_ratio: out
-                .odometry
-                .rest_imu_density
-                .map(|d| d.accel_ratio)
-                .filter(|r| r.is_finite()),
-            imu_gyro_noise_scale: out.odometry.rest_imu_density.map(|d| d.gyro_scale),
-            imu_accel_noise_scale: out.odometry.rest_imu_density.map(|d| d.accel_scale),
+            rest_gyro_density_ratio: rest.map(|d| d.gyro_ratio).filter(|r| r.is_finite()),
+            rest_accel_density_ratio: rest.map(|d| d.accel_ratio).filter(|r| r.is_finite()),
+            imu_gyro_noise_scale: rest.map(|d| d.gyro_scale),
+            imu_accel_noise_scale: rest.map(|d| d.accel_scale),
             init_time_s: match (out.odometry.onset_t, out.odometry.tracking_since) {
                 (Some(a), Some(b)) => Some(b.secs_since(a)),
                 _ => None,
