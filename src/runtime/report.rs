@@ -92,6 +92,11 @@ pub struct ReplayReport {
     /// Of `resets`, losses by motion that relocalised on a stored keyframe covering the
     /// IMU-predicted view instead of building a new first map (`[bootstrap] relocalise`).
     pub relocalisations: u32,
+    /// Longest time from a loss to tracking again, s (`None`: no loss recovered).
+    pub recovery_s_max: Option<f64>,
+    /// Lost and not tracking again when the replay ended: for this long, s (an in-flight first
+    /// map that never started, docs/odometry-log.md, *S-V101's real-time runaways*).
+    pub unrecovered_s: Option<f64>,
     /// Mapper views dropped by the tracking thread, its queue full (real-time mode).
     pub mapping_jobs_dropped: usize,
     /// Views skipped by the mapper to keep up with the camera (real-time mode).
@@ -314,6 +319,8 @@ impl ReplayReport {
             resets: out.odometry.resets,
             resumes: out.odometry.resumes,
             relocalisations: out.odometry.relocalisations,
+            recovery_s_max: out.odometry.recoveries_s.iter().copied().reduce(f64::max),
+            unrecovered_s: out.odometry.unrecovered_s,
             mapping_jobs_dropped: out.odometry.jobs_dropped,
             mapping_views_skipped: out.mapping.views_skipped,
             mapping_ms_mean: if map_ms.is_empty() {
@@ -545,6 +552,15 @@ impl ReplayReport {
                 self.resets, self.resumes, self.relocalisations
             ),
         );
+        if self.recovery_s_max.is_some() || self.unrecovered_s.is_some() {
+            let longest = self
+                .recovery_s_max
+                .map_or_else(|| "none".to_string(), |s| format!("{s:.2} s"));
+            let end = self
+                .unrecovered_s
+                .map_or_else(String::new, |s| format!(", lost at the end for {s:.2} s"));
+            row("longest recovery", format!("{longest}{end}"));
+        }
         if self.semidense_points > 0 {
             row(
                 "semidense",
