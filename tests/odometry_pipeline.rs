@@ -320,10 +320,11 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     assert_eq!((covered.odometry.resets, covered.odometry.resumes), (1, 1));
     assert_eq!(covered.phases.last(), Some(&Phase::Tracking));
     // One loss, tracked again within the covered 0.3 s and the frames after it.
-    let resumed_s = &covered.odometry.recoveries_s;
+    let resumed = covered.recoveries();
+    let resumed_s = &resumed.recovered_s;
     assert_eq!(resumed_s.len(), 1, "{resumed_s:?}");
     assert!(resumed_s[0] > 0.0 && resumed_s[0] < 0.5, "{resumed_s:?}");
-    assert_eq!(covered.odometry.unrecovered_s, None);
+    assert_eq!(resumed.unrecovered_s, None);
     let (a, b) = (
         eval_against_truth(&dir, &clear),
         eval_against_truth(&dir, &covered),
@@ -350,13 +351,14 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     );
     // A new first map needs a baseline: tracked again later than by resuming, and still within
     // the take-off's flight.
-    let rebuilt_s = &unrefined.odometry.recoveries_s;
+    let rebuilt = unrefined.recoveries();
+    let rebuilt_s = &rebuilt.recovered_s;
     assert_eq!(rebuilt_s.len(), 1, "{rebuilt_s:?}");
     assert!(
         rebuilt_s[0] > resumed_s[0],
         "{rebuilt_s:?} vs {resumed_s:?}"
     );
-    assert_eq!(unrefined.odometry.unrecovered_s, None);
+    assert_eq!(rebuilt.unrecovered_s, None);
     let takeoff_passes = clear.odometry.takeoff_scales.len();
     assert_eq!(unrefined.odometry.takeoff_scales.len(), takeoff_passes);
     rebuild_opts.bootstrap.reinit_velocity_std_m_s = 0.1;

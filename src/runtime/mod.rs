@@ -15,5 +15,5 @@ pub mod takeoff;
 pub mod thread_priority;
 
 pub use config::Config;
-pub use replay::{DepthSource, ReplayOptions, ReplayOutput, replay};
+pub use replay::{DepthSource, Recoveries, ReplayOptions, ReplayOutput, replay};
 pub use report::{ReplayReport, trajectory};

@@ -150,6 +150,38 @@ pub struct ReplayOutput {
     pub odometry: OdometryStats,
 }
 
+/// The losses of a replay and how long each took to recover, from its frames' phases.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Recoveries {
+    /// Time from each loss (the first frame left `Lost`) to the first frame tracked again —
+    /// resumed, relocalised or on a new first map — s.
+    pub recovered_s: Vec<f64>,
+    /// Lost and not tracking again at the last frame: for this long, s.
+    pub unrecovered_s: Option<f64>,
+}
+
+impl ReplayOutput {
+    /// The losses and recoveries in `phases` (`report.json` `recovery_s_max`, `unrecovered_s`).
+    pub fn recoveries(&self) -> Recoveries {
+        let mut out = Recoveries::default();
+        let mut lost_since: Option<TimeNs> = None;
+        for (r, phase) in self.frames.iter().zip(&self.phases) {
+            match (phase, lost_since) {
+                (Phase::Lost, None) => lost_since = Some(r.t),
+                (Phase::Tracking, Some(t0)) => {
+                    out.recovered_s.push(r.t.secs_since(t0));
+                    lost_since = None;
+                }
+                _ => {}
+            }
+        }
+        if let (Some(t0), Some(last)) = (lost_since, self.frames.last()) {
+            out.unrecovered_s = Some(last.t.secs_since(t0));
+        }
+        out
+    }
+}
+
 /// Progress callback: `(frames done, frames total)`.
 pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
 

@@ -237,6 +237,7 @@ impl ReplayReport {
                 .iter()
                 .copied(),
         );
+        let recoveries = out.recoveries();
         let mut phases = BTreeMap::new();
         for p in &out.phases {
             *phases.entry(p.as_str().to_string()).or_insert(0) += 1;
@@ -319,8 +320,8 @@ impl ReplayReport {
             resets: out.odometry.resets,
             resumes: out.odometry.resumes,
             relocalisations: out.odometry.relocalisations,
-            recovery_s_max: out.odometry.recoveries_s.iter().copied().reduce(f64::max),
-            unrecovered_s: out.odometry.unrecovered_s,
+            recovery_s_max: recoveries.recovered_s.iter().copied().reduce(f64::max),
+            unrecovered_s: recoveries.unrecovered_s,
             mapping_jobs_dropped: out.odometry.jobs_dropped,
             mapping_views_skipped: out.mapping.views_skipped,
             mapping_ms_mean: if map_ms.is_empty() {

@@ -395,10 +395,6 @@ pub struct OdometryStats {
     pub resumes: u32,
     /// Of `resets`, those that relocalised on a stored keyframe (`[bootstrap] relocalise`).
     pub relocalisations: u32,
-    /// Time from each loss to tracking again (resumed, relocalised or a new first map), s.
-    pub recoveries_s: Vec<f64>,
-    /// Lost and not tracking again when the replay ended: for this long, s.
-    pub unrecovered_s: Option<f64>,
     pub keyframes: usize,
     /// Times the tracker returned to a stored keyframe instead of starting a new one.
     pub keyframe_reuses: usize,
@@ -573,8 +569,6 @@ pub struct Odometry {
     reuse_frames: u32,
     /// Stored keyframes that failed since the last new keyframe was installed.
     failed_reuse: Vec<u32>,
-    /// When tracking was last lost, until it tracks again (`OdometryStats::recoveries_s`).
-    lost_since: Option<TimeNs>,
     /// Keyframes no longer tracked, to return to.
     store: KeyframeStore,
     newest_kf: Option<u32>,
@@ -708,7 +702,6 @@ impl Odometry {
             failed_reuse: Vec::new(),
             reuse_frames: 0,
             store: KeyframeStore::new(cfg.reuse.clone()),
-            lost_since: None,
             newest_kf: None,
             next_kf_id: 0,
             frames_since_refresh: 0,
@@ -1052,14 +1045,6 @@ impl Odometry {
             _ => self.scale.clear(),
         }
         self.frames_since_refresh += 1;
-        match (self.phase, self.lost_since) {
-            (Phase::Lost, None) => self.lost_since = Some(t),
-            (Phase::Tracking, Some(t0)) => {
-                self.stats.recoveries_s.push(t.secs_since(t0));
-                self.lost_since = None;
-            }
-            _ => {}
-        }
         OdometryFrame {
             result,
             phase: self.phase,
@@ -1070,9 +1055,6 @@ impl Odometry {
 
     /// Stops the mapping thread and returns what it built.
     pub fn finish(mut self) -> (OdometryStats, MappingOutput) {
-        if let (Some(t0), Some(t)) = (self.lost_since, self.last_t) {
-            self.stats.unrecovered_s = Some(t.secs_since(t0));
-        }
         if let Some(r) = self.refiner.take() {
             r.finish();
         }
