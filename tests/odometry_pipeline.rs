@@ -339,11 +339,34 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
         b.ate_rmse_m,
         a.ate_rmse_m
     );
-    // Without resuming, a new first map is built from the IMU after the loss instead — as it is
+    // Without resuming, the keyframe lost is stored and relocalised on once the image is back
+    // (the IMU-predicted view covers it).
+    let mut reloc_opts = covered_opts.clone();
+    reloc_opts.bootstrap.resume_max_s = 0.0;
+    let relocalised = replay(&dir, &reloc_opts, &mut |_, _| {}).unwrap();
+    assert_eq!(
+        (
+            relocalised.odometry.resets,
+            relocalised.odometry.resumes,
+            relocalised.odometry.relocalisations
+        ),
+        (1, 0, 1)
+    );
+    let reloc = relocalised.recoveries();
+    assert_eq!(reloc.recovered_s.len(), 1, "{:?}", reloc.recovered_s);
+    assert_eq!(reloc.unrecovered_s, None);
+    let r = eval_against_truth(&dir, &relocalised);
+    println!("relocalised: ATE {:.4} m", r.ate_rmse_m);
+    assert!(
+        r.ate_rmse_m < 1.5 * a.ate_rmse_m + 0.005,
+        "{}",
+        r.ate_rmse_m
+    );
+    // With neither, a new first map is built from the IMU after the loss instead — as it is
     // (the default) or refined like the take-off's from the velocity dead-reckoned through the
     // loss.
-    let mut rebuild_opts = covered_opts.clone();
-    rebuild_opts.bootstrap.resume_max_s = 0.0;
+    let mut rebuild_opts = reloc_opts.clone();
+    rebuild_opts.bootstrap.relocalise = false;
     let unrefined = replay(&dir, &rebuild_opts, &mut |_, _| {}).unwrap();
     assert_eq!(
         (unrefined.odometry.resets, unrefined.odometry.resumes),
@@ -355,8 +378,9 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     let rebuilt_s = &rebuilt.recovered_s;
     assert_eq!(rebuilt_s.len(), 1, "{rebuilt_s:?}");
     assert!(
-        rebuilt_s[0] > resumed_s[0],
-        "{rebuilt_s:?} vs {resumed_s:?}"
+        rebuilt_s[0] > resumed_s[0] && rebuilt_s[0] > reloc.recovered_s[0],
+        "{rebuilt_s:?} vs {resumed_s:?}, {:?}",
+        reloc.recovered_s
     );
     assert_eq!(rebuilt.unrecovered_s, None);
     let takeoff_passes = clear.odometry.takeoff_scales.len();
@@ -378,6 +402,52 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
         "{in_flight:?}"
     );
     assert!(c.ate_rmse_m < 1.5 * a.ate_rmse_m + 0.01, "{}", c.ate_rmse_m);
+}
+
+#[test]
+fn a_first_map_that_does_not_start_in_flight_is_started_again_with_guessed_depths() {
+    // A loss in flight that neither resumes nor relocalises, and a first map from the dead
+    // reckoning that is given no time to start (one frame): it is started again at once, its
+    // depths guessed from the map lost, and tracked from there.
+    let dir = takeoff();
+    let clear = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    let mut opts = ReplayOptions {
+        covered_lens_s: vec![(3.5, 0.3)],
+        ..Default::default()
+    };
+    opts.bootstrap.resume_max_s = 0.0;
+    opts.bootstrap.relocalise = false;
+    opts.bootstrap.reinit_max_s = 0.01;
+    let guessed = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    assert_eq!(guessed.odometry.resets, 1);
+    assert_eq!(guessed.odometry.reinit_guessed_keyframes, 1);
+    let r = guessed.recoveries();
+    assert_eq!(r.recovered_s.len(), 1, "{:?}", r.recovered_s);
+    assert!(r.recovered_s[0] < 0.5, "{:?}", r.recovered_s);
+    assert_eq!(r.unrecovered_s, None);
+    assert_eq!(guessed.phases.last(), Some(&Phase::Tracking));
+    let (a, b) = (
+        eval_against_truth(&dir, &clear),
+        eval_against_truth(&dir, &guessed),
+    );
+    println!(
+        "take-off ATE {:.4} m clear, {:.4} m with a first map in flight from guessed depths",
+        a.ate_rmse_m, b.ate_rmse_m
+    );
+    assert!(
+        b.ate_rmse_m < 2.0 * a.ate_rmse_m + 0.01,
+        "{} vs {}",
+        b.ate_rmse_m,
+        a.ate_rmse_m
+    );
+    // Without the guesses every first map from the dead reckoning is restarted before it can
+    // start: lost until the end.
+    opts.bootstrap.reinit_guessed_depths = false;
+    let waited = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    assert_eq!(waited.odometry.reinit_guessed_keyframes, 0);
+    let r = waited.recoveries();
+    assert!(r.recovered_s.is_empty(), "{:?}", r.recovered_s);
+    assert!(r.unrecovered_s.is_some());
 }
 
 #[test]

@@ -103,6 +103,17 @@ pub struct StoredKeyframe {
     pub map: Arc<SemidenseMap>,
 }
 
+/// How far from a stored keyframe a camera may be for it to be tracked against.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReachLimits {
+    /// Distance to the keyframe / its median depth.
+    pub max_baseline_ratio: f64,
+    /// Rotation from the keyframe, rad.
+    pub max_rotation_rad: f64,
+    /// Predicted fraction of its points in view.
+    pub min_overlap: f64,
+}
+
 /// Keyframes kept for tracking against the closest one.
 #[derive(Debug)]
 pub struct KeyframeStore {
@@ -178,6 +189,22 @@ impl KeyframeStore {
         excluded: impl Fn(u32) -> bool,
     ) -> Option<(u32, f64)> {
         let c = &self.cfg;
+        let limits = ReachLimits {
+            max_baseline_ratio: c.max_baseline_ratio,
+            max_rotation_rad: c.max_rotation_rad,
+            min_overlap: c.min_overlap,
+        };
+        self.closest_within(t_world_cam, border_px, excluded, &limits)
+    }
+
+    /// [`KeyframeStore::closest`] within other limits than `[reuse]`'s.
+    pub fn closest_within(
+        &self,
+        t_world_cam: &Isometry3<f64>,
+        border_px: f64,
+        excluded: impl Fn(u32) -> bool,
+        l: &ReachLimits,
+    ) -> Option<(u32, f64)> {
         // Nearest first; the overlap (a projection of every point) only until one passes.
         let mut near: Vec<(f64, u32, &StoredKeyframe)> = self
             .entries
@@ -185,15 +212,15 @@ impl KeyframeStore {
             .filter(|e| !excluded(e.kf.id))
             .filter_map(|e| {
                 let (b, r) = distance(&e.kf, t_world_cam);
-                let d = b / c.max_baseline_ratio.max(1e-9) + r / c.max_rotation_rad.max(1e-9);
-                (b <= c.max_baseline_ratio && r <= c.max_rotation_rad).then_some((d, e.kf.id, e))
+                let d = b / l.max_baseline_ratio.max(1e-9) + r / l.max_rotation_rad.max(1e-9);
+                (b <= l.max_baseline_ratio && r <= l.max_rotation_rad).then_some((d, e.kf.id, e))
             })
             .collect();
         near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         near.into_iter().find_map(|(_, id, e)| {
             let o =
-                e.kf.predicted_overlap(t_world_cam, c.overlap_level, border_px);
-            (o >= c.min_overlap).then_some((id, o))
+                e.kf.predicted_overlap(t_world_cam, self.cfg.overlap_level, border_px);
+            (o >= l.min_overlap).then_some((id, o))
         })
     }
 }

@@ -57,6 +57,10 @@ pub struct KeyframeJob {
     /// The depths are not held to the mapper's (`depth_rel_std` not applied): their scale is what
     /// is in doubt (a keyframe tracked with guessed depths).
     pub free_depths: bool,
+    /// Prior standard deviation of the keyframe's velocity instead of `[keyframe_bundle]
+    /// velocity_std_m_s`, m/s, with the smoothness prior made scale-neutral: a first map started
+    /// in flight, whose start velocity is only dead-reckoned (`None`: the keyframe window's).
+    pub start_velocity_std_m_s: Option<f64>,
 }
 
 /// One refinement pass of the take-off.
@@ -204,9 +208,13 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
 fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyframe> {
     let free;
     let cfg = if job.free_depths {
+        let base = &s.keyframe_bundle;
         free = KeyframeBundleConfig {
             depth_rel_std: 0.0,
-            ..s.keyframe_bundle.clone()
+            velocity_std_m_s: job.start_velocity_std_m_s.unwrap_or(base.velocity_std_m_s),
+            smoothness_scale_neutral: job.start_velocity_std_m_s.is_some()
+                || base.smoothness_scale_neutral,
+            ..base.clone()
         };
         &free
     } else {

@@ -92,6 +92,9 @@ pub struct ReplayReport {
     /// Of `resets`, losses by motion that relocalised on a stored keyframe covering the
     /// IMU-predicted view instead of building a new first map (`[bootstrap] relocalise`).
     pub relocalisations: u32,
+    /// First maps started in flight that did not start in time from the dead reckoning and were
+    /// installed with guessed depths instead (`[bootstrap] reinit_guessed_depths`).
+    pub reinit_guessed_keyframes: usize,
     /// Longest time from a loss to tracking again, s (`None`: no loss recovered).
     pub recovery_s_max: Option<f64>,
     /// Lost and not tracking again when the replay ended: for this long, s (an in-flight first
@@ -320,6 +323,7 @@ impl ReplayReport {
             resets: out.odometry.resets,
             resumes: out.odometry.resumes,
             relocalisations: out.odometry.relocalisations,
+            reinit_guessed_keyframes: out.odometry.reinit_guessed_keyframes,
             recovery_s_max: recoveries.recovered_s.iter().copied().reduce(f64::max),
             unrecovered_s: recoveries.unrecovered_s,
             mapping_jobs_dropped: out.odometry.jobs_dropped,
@@ -549,8 +553,14 @@ impl ReplayReport {
         row(
             "resets",
             format!(
-                "{} ({} resumed on the keyframe lost, {} relocalised on a stored one)",
-                self.resets, self.resumes, self.relocalisations
+                "{} ({} resumed on the keyframe lost, {} relocalised on a stored one{})",
+                self.resets,
+                self.resumes,
+                self.relocalisations,
+                match self.reinit_guessed_keyframes {
+                    0 => String::new(),
+                    n => format!(", {n} first maps restarted with guessed depths"),
+                }
             ),
         );
         if self.recovery_s_max.is_some() || self.unrecovered_s.is_some() {

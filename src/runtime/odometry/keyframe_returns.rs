@@ -18,12 +18,12 @@ impl Odometry {
     /// of the window) covers the current view, track against it instead. Its pose is that of an
     /// earlier, less drifted map, so the current pose is made uncertain enough for the next
     /// frames to be pulled onto it. Returns whether it switched.
-    pub(super) fn switch_to_stored_keyframe(&mut self) -> bool {
+    pub(super) fn switch_to_stored_keyframe(&mut self, after_loss: bool) -> bool {
         if !self.cfg.reuse.enabled || self.store.is_empty() {
             return false;
         }
-        let Some(id) = self.stored_keyframe_covering(&self.tracker.t_world_cam(), self.tracking_kf)
-        else {
+        let at = self.tracker.t_world_cam();
+        let Some(id) = self.stored_keyframe_covering(&at, self.tracking_kf, after_loss) else {
             return false;
         };
         let Some(stored) = self.store.get(id).cloned() else {
@@ -78,13 +78,29 @@ impl Odometry {
         &self,
         t_world_cam: &Isometry3<f64>,
         current: Option<u32>,
+        after_loss: bool,
     ) -> Option<u32> {
         let (window, failed) = (&self.window, &self.failed_reuse);
-        self.store
-            .closest(t_world_cam, self.cfg.tracking.border_px, |id| {
-                Some(id) == current || window.state(id).is_some() || failed.contains(&id)
-            })
-            .map(|(id, _overlap)| id)
+        let window_too = after_loss && self.cfg.bootstrap.relocalise_in_window;
+        let excluded = |id| {
+            Some(id) == current
+                || (!window_too && window.state(id).is_some())
+                || failed.contains(&id)
+        };
+        let border_px = self.cfg.tracking.border_px;
+        let b = &self.cfg.bootstrap;
+        if after_loss {
+            let limits = ReachLimits {
+                max_baseline_ratio: b.relocalise_max_baseline_ratio,
+                max_rotation_rad: b.relocalise_max_rotation_rad,
+                min_overlap: b.relocalise_min_overlap,
+            };
+            self.store
+                .closest_within(t_world_cam, border_px, excluded, &limits)
+        } else {
+            self.store.closest(t_world_cam, border_px, excluded)
+        }
+        .map(|(id, _overlap)| id)
     }
 
     /// Keeps the tracking keyframe `kf` (with its map), which is being left, for returning to it

@@ -422,6 +422,65 @@ impl Odometry {
         self.install_keyframe(kf, &s, true, true, false);
     }
 
+    /// `[bootstrap] reinit_guessed_depths`: the first map just started in flight from `frame`
+    /// (`pending_kf`; the tracker holds that frame) is installed at once, its gradient pixels at
+    /// the median inverse depth of the last map tracked, as a keyframe of guessed depths. Its
+    /// record goes to the keyframe adjustment with its depths free once the mapper's own map of
+    /// it is in and its views span a baseline; the velocity dead-reckoned through the loss is
+    /// given `reinit_velocity_free_std_m_s`. Nothing is installed before any map was tracked
+    /// (no depth to guess) or on too little texture: the mapper's first map is awaited then.
+    pub(super) fn install_reinit_keyframe(&mut self, frame: &MapFrame) {
+        let b = &self.cfg.bootstrap;
+        let (Some(id), Some(median_inv)) = (self.pending_kf, self.last_median_inv_depth) else {
+            return;
+        };
+        let map = SemidenseMap {
+            t_world_cam: self.mapper_from_world * frame.t_world_cam,
+            camera: self.rig.camera,
+            points: Vec::new(),
+        };
+        let pyr = self.tracker.frame_pyramid();
+        let pts = depthless_points(pyr, &map, median_inv, &self.cfg.tracking);
+        if pts.len() < b.min_keyframe_points {
+            return;
+        }
+        let kf = Keyframe::new(
+            id,
+            frame.t,
+            pyr,
+            &self.rig.camera,
+            frame.t_world_cam,
+            &pts,
+            &self.cfg.tracking,
+        );
+        let s = MapSnapshot {
+            seq: 0,
+            keyframe_id: id,
+            keyframe_t: frame.t,
+            keyframe_image: frame.image.clone(),
+            map: Arc::new(map),
+            views: 0,
+            forward_views: 0,
+            time_s: 0.0,
+        };
+        let x = *self.tracker.state();
+        let mut cov = *self.tracker.covariance();
+        let var = b.reinit_velocity_free_std_m_s.powi(2);
+        for i in 6..9 {
+            cov[(i, i)] = cov[(i, i)].max(var);
+        }
+        self.tracker.reset_state(x, cov);
+        self.kf_record = Some(KeyframeRecord {
+            id,
+            start: x,
+            views: Vec::new(),
+            previous: None,
+        });
+        self.reinit_kf = Some(id);
+        self.stats.reinit_guessed_keyframes += 1;
+        self.install_keyframe(kf, &s, true, true, false);
+    }
+
     /// Turned on the spot: a camera at `t_world_cam` (tracker's world) is barely displaced from
     /// the keyframe tracked (`fill_max_baseline_ratio` of its median depth).
     fn on_the_spot(&self, t_world_cam: &Isometry3<f64>) -> bool {

@@ -28,10 +28,14 @@
 //! * [`Phase::Lost`]: several consecutive frames had too few photometric inliers (covered lens,
 //!   dark, a keyframe left behind). Poses are IMU-only; a short loss of the image resumes on the
 //!   keyframe lost (`resume_max_s`), a loss by motion relocalises on a stored keyframe covering
-//!   the IMU-predicted view (`relocalise`); otherwise, as soon as the image has texture again, a
-//!   new keyframe is started as in the bootstrap (its first map refined like the take-off's,
-//!   from the velocity dead-reckoned through the loss, if `reinit_velocity_std_m_s` > 0). Each
-//!   loss is counted as a reset.
+//!   the IMU-predicted view (`relocalise`: the keyframe lost, which is stored at the loss, and
+//!   the keyframe window's are candidates too, within `relocalise_max_*` — and again on every
+//!   frame while a first map is started in flight); otherwise, as soon as the image has texture
+//!   again, a new keyframe is started as in the bootstrap (its first map refined like the take-off's,
+//!   from the velocity dead-reckoned through the loss, if `reinit_velocity_std_m_s` > 0). If that
+//!   first map has not started after `reinit_max_s` (the dead reckoning has drifted too far to
+//!   triangulate from), the next one is installed at once with guessed depths and tracked
+//!   (`reinit_guessed_depths`). Each loss is counted as a reset.
 //!
 //! # Determinism
 //! In offline mode every job's snapshot is awaited a fixed number of frames later
@@ -50,7 +54,7 @@
 use super::keyframe_bundle::{
     KeyframeBundleConfig, KeyframeRecord, PreviousHost, carry_correction,
 };
-use super::keyframe_store::{KeyframeStore, ReuseConfig, StoredKeyframe};
+use super::keyframe_store::{KeyframeStore, ReachLimits, ReuseConfig, StoredKeyframe};
 use super::mapping_worker::{
     MapFrame, MapJob, MapSnapshot, MappingOptions, MappingOutput, MappingThread,
 };
@@ -124,6 +128,9 @@ pub struct BootstrapConfig {
     /// If the first map is not ready this long after motion onset, restart it at the current
     /// frame, s.
     pub max_init_s: f64,
+    /// The same for a first map started in flight after a loss, s: it is then started again
+    /// with guessed depths (`reinit_guessed_depths`).
+    pub reinit_max_s: f64,
     /// Inverse-depth search range of a keyframe started without a previous map, 1/m.
     pub init_inv_depth_min_m_inv: f64,
     pub init_inv_depth_max_m_inv: f64,
@@ -146,6 +153,16 @@ pub struct BootstrapConfig {
     /// of building a new first map from an IMU baseline whose scale is that of the velocity
     /// error after the loss. Counted as a reset either way.
     pub relocalise: bool,
+    /// …on the keyframes of the keyframe window too (the latest ones, nearest to the loss; while
+    /// tracking, a return to one of them is not a return to a less drifted map).
+    pub relocalise_in_window: bool,
+    /// …and, failing that, on every frame while a first map is being started in flight.
+    pub relocalise_while_rebuilding: bool,
+    /// How far from the IMU-predicted camera a keyframe may be to relocalise on it: distance
+    /// over its median depth, rotation (rad) and the predicted fraction of its points in view.
+    pub relocalise_max_baseline_ratio: f64,
+    pub relocalise_max_rotation_rad: f64,
+    pub relocalise_min_overlap: f64,
     /// Rebuild the tracking keyframe from a refined map at most every this many frames.
     pub refresh_every_frames: u32,
     /// Offline replays use a job's snapshot this many frames after sending it (1: the mapper
@@ -208,6 +225,19 @@ pub struct BootstrapConfig {
     /// but with real-time latency the refined first map arrives when the vehicle has left its
     /// view (docs/odometry-log.md, *A first map started in flight*).
     pub reinit_velocity_std_m_s: f64,
+    /// A first map started in flight is installed at once, without waiting for the mapper: the
+    /// frame's gradient pixels at the median inverse depth of the last map tracked (a room does
+    /// not change its depth much in the time a loss takes). Tracked from the next frame on, its
+    /// poses come from the camera instead of from the dead reckoning through the loss, whose
+    /// velocity error grows by up to 0.5 m/s every second and gives the mapper baselines it
+    /// cannot triangulate. Like a keyframe of a turn on the spot, the mapper's own map of it
+    /// replaces the guesses, and the keyframe adjustment with its depths free
+    /// (`[keyframe_bundle] guessed_min_baseline_ratio`) then takes its scale from the IMU.
+    pub reinit_guessed_depths: bool,
+    /// Standard deviation of the velocity given to the tracker when such a first map is
+    /// installed, and of the start velocity's prior in its adjustment, m/s: the velocity
+    /// dead-reckoned through the loss is that uncertain.
+    pub reinit_velocity_free_std_m_s: f64,
     /// Prior standard deviation of the dead reckoning's world acceleration error, m/s².
     pub takeoff_accel_std_m_s2: f64,
     /// Noise of a tracked take-off position against the integrated one, m.
@@ -267,6 +297,7 @@ impl Default for BootstrapConfig {
             urgent_inlier_ratio: 0.6,
             urgent_unadjusted_inlier_ratio: 0.45,
             max_init_s: 3.0,
+            reinit_max_s: 3.0,
             min_init_baseline_ratio: 0.1,
             onset_margin_s: 0.3,
             init_inv_depth_min_m_inv: 0.05,
@@ -276,6 +307,11 @@ impl Default for BootstrapConfig {
             resume_max_s: 2.0,
             resume_min_overlap: 0.4,
             relocalise: true,
+            relocalise_in_window: true,
+            relocalise_while_rebuilding: true,
+            relocalise_max_baseline_ratio: 0.5,
+            relocalise_max_rotation_rad: 0.5,
+            relocalise_min_overlap: 0.5,
             min_texture_points: 1500,
             refresh_every_frames: 2,
             offline_lag_frames: 2,
@@ -294,6 +330,8 @@ impl Default for BootstrapConfig {
             takeoff_max_pass_frames: 30,
             takeoff_velocity_std_m_s: 0.01,
             reinit_velocity_std_m_s: 0.0,
+            reinit_guessed_depths: true,
+            reinit_velocity_free_std_m_s: 0.5,
             takeoff_accel_std_m_s2: 0.05,
             takeoff_position_std_m: 0.005,
             takeoff_max_scale_correction: 0.3,
@@ -401,6 +439,9 @@ pub struct OdometryStats {
     /// Times a stored keyframe lost track right after the tracker returned to it.
     pub keyframe_reuse_failures: usize,
     /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
+    /// First maps started in flight installed at once with guessed depths (`[bootstrap]
+    /// reinit_guessed_depths`).
+    pub reinit_guessed_keyframes: usize,
     pub spot_turn_keyframes: usize,
     /// Stored keyframes that failed their probation where the keyframe left was out of view
     /// (`[reuse] return_min_overlap`): a new keyframe was started instead of going back.
@@ -581,6 +622,8 @@ pub struct Odometry {
     /// The rest estimate at each of those frames, newest last.
     rest_estimates: VecDeque<StaticEstimate>,
     init_started: Option<TimeNs>,
+    /// The first map being started is one after a loss in flight (`[bootstrap] reinit_max_s`).
+    init_in_flight: bool,
     /// The take-off from rest while its first map is built.
     takeoff: Option<TakeoffRecord>,
     /// The keyframe started in flight and the frames tracked since, until it is installed.
@@ -600,6 +643,9 @@ pub struct Odometry {
     guessed: Option<KeyframeRecord>,
     /// The snapshot of its map as last installed (`None` while only the guesses are).
     guessed_snapshot: Option<MapSnapshot>,
+    /// The first map started in flight with guessed depths (`[bootstrap] reinit_guessed_depths`)
+    /// while it awaits its adjustment: that adjustment's start velocity is uncertain.
+    reinit_kf: Option<u32>,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
@@ -710,6 +756,7 @@ impl Odometry {
             static_frames: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
             rest_estimates: VecDeque::with_capacity(STATIC_FRAMES_KEPT),
             init_started: None,
+            init_in_flight: false,
             takeoff: None,
             kf_record: None,
             tracked_frames: VecDeque::new(),
@@ -717,6 +764,7 @@ impl Odometry {
             tracking_kf_adjusted: false,
             guessed: None,
             guessed_snapshot: None,
+            reinit_kf: None,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
@@ -840,6 +888,7 @@ impl Odometry {
                 self.static_frames.clear();
                 self.phase = Phase::Initializing;
                 self.init_started = Some(t);
+                self.init_in_flight = false;
                 self.track(t, &image)
             }
             Phase::Initializing | Phase::Tracking | Phase::Lost => self.track(t, &image),
@@ -855,18 +904,24 @@ impl Odometry {
             Phase::Initializing => {
                 result.flag = None; // IMU-only while the first map grows: expected, not a failure
                 let started = self.init_started.unwrap_or(t);
+                let max_init_s = if self.init_in_flight {
+                    self.cfg.bootstrap.reinit_max_s
+                } else {
+                    self.cfg.bootstrap.max_init_s
+                };
                 // (Not while the first map is out for its take-off refinement: it has structure,
                 // and in real time a pass over all the take-off's frames takes seconds.)
-                if self.newest_kf.is_none()
-                    || (t.secs_since(started) > self.cfg.bootstrap.max_init_s
-                        && !self.refining_takeoff(None))
+                if self.init_in_flight
+                    && self.cfg.bootstrap.relocalise_while_rebuilding
+                    && self.relocalise_instead_of_first_map()
+                {
+                    // Tracked from the next frame on against a stored keyframe (probation).
+                } else if self.newest_kf.is_none()
+                    || (t.secs_since(started) > max_init_s && !self.refining_takeoff(None))
                 {
                     // Not enough structure yet: restart the first map from here (no longer a
                     // take-off from rest).
-                    self.reset_window();
-                    self.takeoff = self.in_flight_takeoff(&frame);
-                    self.start_keyframe(frame.clone(), Vec::new(), false);
-                    self.init_started = Some(t);
+                    self.restart_first_map(&frame, true);
                 } else {
                     if let Some(tk) = self.takeoff.as_mut() {
                         tk.frames.push(frame.clone());
@@ -926,13 +981,22 @@ impl Odometry {
                                 && self.cfg.bootstrap.resume_max_s > 0.0
                         })
                         .map(|(kf, map)| (StoredKeyframe { kf, map }, t, self.reusing));
+                    // The keyframe lost is the nearest map to relocalise on (a stored one is
+                    // stored already).
+                    if self.cfg.bootstrap.relocalise_in_window
+                        && !self.reusing
+                        && let (Some(kf), Some(map)) =
+                            (self.tracker.keyframe().cloned(), self.tracking_map.clone())
+                    {
+                        self.store_keyframe(kf, map);
+                    }
                     self.lose_keyframe();
                     self.history.clear();
                     self.stats.resets += 1;
                 } else if result.wants_keyframe
                     && result.flag.is_none()
                     && self.pending_kf.is_none()
-                    && self.switch_to_stored_keyframe()
+                    && self.switch_to_stored_keyframe(false)
                 {
                     // Tracking continues against a stored keyframe: nothing for the mapper.
                 } else if result.wants_keyframe
@@ -995,7 +1059,7 @@ impl Odometry {
                     && self.resume_tracking(s, reusing)
                 {
                     self.stats.resumes += 1;
-                } else if self.cfg.bootstrap.relocalise && self.switch_to_stored_keyframe() {
+                } else if self.cfg.bootstrap.relocalise && self.switch_to_stored_keyframe(true) {
                     // Tracked from the next frame on against a stored keyframe covering the
                     // IMU-predicted view, on probation (no keyframe left to go back to: a failed
                     // probation is a loss again).
@@ -1003,11 +1067,8 @@ impl Odometry {
                     self.consecutive_flagged = 0;
                     self.stats.relocalisations += 1;
                 } else {
-                    self.reset_window();
-                    self.takeoff = self.in_flight_takeoff(&frame);
-                    self.start_keyframe(frame.clone(), Vec::new(), false);
                     self.phase = Phase::Initializing;
-                    self.init_started = Some(t);
+                    self.restart_first_map(&frame, false);
                 }
             }
         }
@@ -1171,7 +1232,10 @@ impl Odometry {
         );
         let fits = overlap >= self.cfg.bootstrap.resume_min_overlap;
         let covered = || {
-            self.cfg.reuse.enabled && self.stored_keyframe_covering(&at, Some(s.kf.id)).is_some()
+            self.cfg.reuse.enabled
+                && self
+                    .stored_keyframe_covering(&at, Some(s.kf.id), false)
+                    .is_some()
         };
         if !fits && !covered() {
             return false;
@@ -1189,7 +1253,7 @@ impl Odometry {
         self.resumed = true;
         if !fits {
             // (Covered: the switch finds the stored keyframe checked above.)
-            self.switch_to_stored_keyframe();
+            self.switch_to_stored_keyframe(false);
         }
         true
     }
@@ -1216,6 +1280,43 @@ impl Odometry {
             self.next_kf_id,
             true,
         ))
+    }
+
+    /// While a first map is being started in flight: if a stored keyframe covers the
+    /// IMU-predicted view (`relocalise_*`), it is tracked instead and the first map is dropped.
+    fn relocalise_instead_of_first_map(&mut self) -> bool {
+        if !self.cfg.bootstrap.relocalise || self.refining_takeoff(None) {
+            return false;
+        }
+        let pending = self.pending_kf.take();
+        if !self.switch_to_stored_keyframe(true) {
+            self.pending_kf = pending;
+            return false;
+        }
+        self.takeoff = None;
+        self.kf_record = None;
+        self.reinit_kf = None;
+        self.reset_window();
+        self.phase = Phase::Tracking;
+        self.consecutive_flagged = 0;
+        self.stats.relocalisations += 1;
+        true
+    }
+
+    /// Starts a first map in flight from `frame` (the frame just tracked on the IMU alone; phase
+    /// `Initializing`), triangulated by the mapper from the dead reckoning. When the last one did
+    /// not start in time (`guessed`; `reinit_max_s`), the dead reckoning has drifted too far to
+    /// triangulate from and the new one is installed at once with guessed depths
+    /// (`[bootstrap] reinit_guessed_depths`; phase `Tracking`).
+    fn restart_first_map(&mut self, frame: &MapFrame, guessed: bool) {
+        self.reset_window();
+        self.takeoff = self.in_flight_takeoff(frame);
+        self.start_keyframe(frame.clone(), Vec::new(), false);
+        self.init_started = Some(frame.t);
+        self.init_in_flight = true;
+        if guessed && self.cfg.bootstrap.reinit_guessed_depths {
+            self.install_reinit_keyframe(frame);
+        }
     }
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's

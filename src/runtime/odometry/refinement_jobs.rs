@@ -109,6 +109,9 @@ impl Odometry {
             .as_ref()
             .map_or(rec.start.nav.t, |p| p.state.nav.t);
         let imu = imu_between(self.imu.make_contiguous(), t0, Some(tracked_last.nav.t));
+        // A first map started in flight with guessed depths: its start velocity is the one
+        // dead-reckoned through the loss.
+        let reinit = tracked && self.reinit_kf.take_if(|id| *id == rec.id).is_some();
         self.refine_seq += 1;
         let job = RefineJob::Keyframe(Box::new(KeyframeJob {
             seq: self.refine_seq,
@@ -118,6 +121,8 @@ impl Odometry {
             imu,
             noise: self.imu_noise,
             free_depths: tracked,
+            start_velocity_std_m_s: reinit
+                .then_some(self.cfg.bootstrap.reinit_velocity_free_std_m_s),
         }));
         let kind = PendingKind::Keyframe {
             tracked_last,
