@@ -32,6 +32,28 @@ fn takeoff() -> PathBuf {
     .clone()
 }
 
+/// Prints the ATE of `out` (`what` happened in it) beside the clear run's `clear` and checks it
+/// is below `factor` × that + `slack_m`.
+fn ate_near_clear(
+    dir: &std::path::Path,
+    clear: &EvalReport,
+    out: &vidslam::runtime::ReplayOutput,
+    what: &str,
+    (factor, slack_m): (f64, f64),
+) {
+    let e = eval_against_truth(dir, out);
+    println!(
+        "take-off ATE {:.4} m clear, {:.4} m with {what}",
+        clear.ate_rmse_m, e.ate_rmse_m
+    );
+    assert!(
+        e.ate_rmse_m < factor * clear.ate_rmse_m + slack_m,
+        "{what}: {} vs {}",
+        e.ate_rmse_m,
+        clear.ate_rmse_m
+    );
+}
+
 /// The trajectory in `out` against the dataset's ground truth (SE3 alignment).
 fn eval_against_truth(dir: &std::path::Path, out: &vidslam::runtime::ReplayOutput) -> EvalReport {
     let gt = AslDataset::open(dir)
@@ -325,19 +347,13 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     assert_eq!(resumed_s.len(), 1, "{resumed_s:?}");
     assert!(resumed_s[0] > 0.0 && resumed_s[0] < 0.5, "{resumed_s:?}");
     assert_eq!(resumed.unrecovered_s, None);
-    let (a, b) = (
-        eval_against_truth(&dir, &clear),
-        eval_against_truth(&dir, &covered),
-    );
-    println!(
-        "take-off ATE {:.4} m clear, {:.4} m with the lens covered for 0.3 s",
-        a.ate_rmse_m, b.ate_rmse_m
-    );
-    assert!(
-        b.ate_rmse_m < 1.5 * a.ate_rmse_m + 0.005,
-        "{} vs {}",
-        b.ate_rmse_m,
-        a.ate_rmse_m
+    let a = eval_against_truth(&dir, &clear);
+    ate_near_clear(
+        &dir,
+        &a,
+        &covered,
+        "the lens covered for 0.3 s",
+        (1.5, 0.005),
     );
     // Without resuming, the keyframe lost is stored and relocalised on once the image is back
     // (the IMU-predicted view covers it).
@@ -355,13 +371,7 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     let reloc = relocalised.recoveries();
     assert_eq!(reloc.recovered_s.len(), 1, "{:?}", reloc.recovered_s);
     assert_eq!(reloc.unrecovered_s, None);
-    let r = eval_against_truth(&dir, &relocalised);
-    println!("relocalised: ATE {:.4} m", r.ate_rmse_m);
-    assert!(
-        r.ate_rmse_m < 1.5 * a.ate_rmse_m + 0.005,
-        "{}",
-        r.ate_rmse_m
-    );
+    ate_near_clear(&dir, &a, &relocalised, "relocalised", (1.5, 0.005));
     // With neither, a new first map is built from the IMU after the loss instead — as it is
     // (the default) or refined like the take-off's from the velocity dead-reckoned through the
     // loss.
@@ -426,19 +436,13 @@ fn a_first_map_that_does_not_start_in_flight_is_started_again_with_guessed_depth
     assert!(r.recovered_s[0] < 0.5, "{:?}", r.recovered_s);
     assert_eq!(r.unrecovered_s, None);
     assert_eq!(guessed.phases.last(), Some(&Phase::Tracking));
-    let (a, b) = (
-        eval_against_truth(&dir, &clear),
-        eval_against_truth(&dir, &guessed),
-    );
-    println!(
-        "take-off ATE {:.4} m clear, {:.4} m with a first map in flight from guessed depths",
-        a.ate_rmse_m, b.ate_rmse_m
-    );
-    assert!(
-        b.ate_rmse_m < 2.0 * a.ate_rmse_m + 0.01,
-        "{} vs {}",
-        b.ate_rmse_m,
-        a.ate_rmse_m
+    let a = eval_against_truth(&dir, &clear);
+    ate_near_clear(
+        &dir,
+        &a,
+        &guessed,
+        "a first map in flight from guessed depths",
+        (2.0, 0.01),
     );
     // Without the guesses every first map from the dead reckoning is restarted before it can
     // start: lost until the end.

@@ -31,11 +31,11 @@
 //!   the IMU-predicted view (`relocalise`: the keyframe lost, which is stored at the loss, and
 //!   the keyframe window's are candidates too, within `relocalise_max_*` — and again on every
 //!   frame while a first map is started in flight); otherwise, as soon as the image has texture
-//!   again, a new keyframe is started as in the bootstrap (its first map refined like the take-off's,
-//!   from the velocity dead-reckoned through the loss, if `reinit_velocity_std_m_s` > 0). If that
-//!   first map has not started after `reinit_max_s` (the dead reckoning has drifted too far to
-//!   triangulate from), the next one is installed at once with guessed depths and tracked
-//!   (`reinit_guessed_depths`). Each loss is counted as a reset.
+//!   again, a new keyframe is started as in the bootstrap (its first map refined like the
+//!   take-off's, from the velocity dead-reckoned through the loss, if `reinit_velocity_std_m_s`
+//!   is positive). If that first map has not started after `reinit_max_s` (the dead reckoning
+//!   has drifted too far to triangulate from), the next one is installed at once with guessed
+//!   depths and tracked (`reinit_guessed_depths`). Each loss is counted as a reset.
 //!
 //! # Determinism
 //! In offline mode every job's snapshot is awaited a fixed number of frames later
@@ -438,10 +438,10 @@ pub struct OdometryStats {
     pub keyframe_reuses: usize,
     /// Times a stored keyframe lost track right after the tracker returned to it.
     pub keyframe_reuse_failures: usize,
-    /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
     /// First maps started in flight installed at once with guessed depths (`[bootstrap]
     /// reinit_guessed_depths`).
     pub reinit_guessed_keyframes: usize,
+    /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
     pub spot_turn_keyframes: usize,
     /// Stored keyframes that failed their probation where the keyframe left was out of view
     /// (`[reuse] return_min_overlap`): a new keyframe was started instead of going back.
