@@ -67,6 +67,7 @@ impl Odometry {
             self.tracker.reset_state(x, cov);
         }
         self.reusing = true;
+        self.relocalised = after_loss;
         self.keyframe_jump = true;
         self.stats.keyframe_reuses += 1;
         true
@@ -114,8 +115,8 @@ impl Odometry {
     /// A stored keyframe lost track: mark it failed and track the keyframe left for it again —
     /// if that one is still in view (`return_min_overlap`). Returns whether it went back; if not,
     /// the failing keyframe stays tracked until a new one replaces it.
-    pub(super) fn return_from_stored_keyframe(&mut self) -> bool {
-        if let Some(id) = self.tracking_kf {
+    pub(super) fn return_from_stored_keyframe(&mut self, keyframe_at_fault: bool) -> bool {
+        if keyframe_at_fault && let Some(id) = self.tracking_kf {
             self.failed_reuse.push(id);
         }
         self.stats.keyframe_reuse_failures += 1;

@@ -516,6 +516,7 @@ impl Odometry {
             }
             self.pending_kf = None;
             self.reusing = false;
+            self.relocalised = false;
             self.left_kf = None;
             self.switch_correction = None;
             self.reuse_previous = None;

@@ -646,6 +646,9 @@ pub struct Odometry {
     /// The first map started in flight with guessed depths (`[bootstrap] reinit_guessed_depths`)
     /// while it awaits its adjustment: that adjustment's start velocity is uncertain.
     reinit_kf: Option<u32>,
+    /// The stored keyframe tracked was relocalised on after a loss (cleared by a return while
+    /// tracking or a new keyframe).
+    relocalised: bool,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
@@ -765,6 +768,7 @@ impl Odometry {
             guessed: None,
             guessed_snapshot: None,
             reinit_kf: None,
+            relocalised: false,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
@@ -958,9 +962,13 @@ impl Odometry {
                 let failed_probation = self.reuse_frames <= r.probation_frames
                     && (result.flag == Some(FlagReason::FewInliers)
                         || result.inlier_ratio < r.probation_min_inlier_ratio);
-                let stored_unfit = self.reusing
-                    && (failed_probation || self.tracker.brightness_collapsed(&result));
-                let stay = stored_unfit && !self.return_from_stored_keyframe();
+                let collapsed = self.tracker.brightness_collapsed(&result);
+                let stored_unfit = self.reusing && (failed_probation || collapsed);
+                // Relocalised after a loss, a brightness collapse is the image's doing (a lens
+                // still being uncovered, the exposure settling), not the keyframe's: it stays a
+                // candidate for the next frames.
+                let at_fault = !(collapsed && self.relocalised);
+                let stay = stored_unfit && !self.return_from_stored_keyframe(at_fault);
                 if stay {
                     result.wants_keyframe = true;
                 }
