@@ -392,10 +392,30 @@ impl Odometry {
         let Some(median_inv) = median_inv_depth(&map).or(self.last_median_inv_depth) else {
             return;
         };
+        let Some((kf, s)) = self.guessed_keyframe(id, t, image, t_world_cam, map, median_inv)
+        else {
+            return;
+        };
+        self.stats.spot_turn_keyframes += 1;
+        self.install_keyframe(kf, &s, true, true, false);
+    }
+
+    /// Keyframe `id` of the frame just tracked (at `t`, of `image`, camera at `t_world_cam`):
+    /// the points of `map` (the mapper's world) and its other gradient pixels at inverse depth
+    /// `median_inv`, with the snapshot to install it by — `None` below `min_keyframe_points`.
+    fn guessed_keyframe(
+        &mut self,
+        id: u32,
+        t: TimeNs,
+        image: &Arc<Image<u8>>,
+        t_world_cam: Isometry3<f64>,
+        map: SemidenseMap,
+        median_inv: f32,
+    ) -> Option<(Keyframe, MapSnapshot)> {
         let pyr = self.tracker.frame_pyramid();
         let fill = depthless_points(pyr, &map, median_inv, &self.cfg.tracking);
-        if map.points.len() + fill.len() < b.min_keyframe_points {
-            return;
+        if map.points.len() + fill.len() < self.cfg.bootstrap.min_keyframe_points {
+            return None;
         }
         let mut pts = depth_points(&map);
         pts.extend(fill);
@@ -418,8 +438,7 @@ impl Odometry {
             forward_views: 0,
             time_s: 0.0,
         };
-        self.stats.spot_turn_keyframes += 1;
-        self.install_keyframe(kf, &s, true, true, false);
+        Some((kf, s))
     }
 
     /// `[bootstrap] reinit_guessed_depths`: the first map just started in flight from `frame`
@@ -430,7 +449,6 @@ impl Odometry {
     /// given `reinit_velocity_free_std_m_s`. Nothing is installed before any map was tracked
     /// (no depth to guess) or on too little texture: the mapper's first map is awaited then.
     pub(super) fn install_reinit_keyframe(&mut self, frame: &MapFrame) {
-        let b = &self.cfg.bootstrap;
         let (Some(id), Some(median_inv)) = (self.pending_kf, self.last_median_inv_depth) else {
             return;
         };
@@ -439,33 +457,19 @@ impl Odometry {
             camera: self.rig.camera,
             points: Vec::new(),
         };
-        let pyr = self.tracker.frame_pyramid();
-        let pts = depthless_points(pyr, &map, median_inv, &self.cfg.tracking);
-        if pts.len() < b.min_keyframe_points {
-            return;
-        }
-        let kf = Keyframe::new(
+        let Some((kf, s)) = self.guessed_keyframe(
             id,
             frame.t,
-            pyr,
-            &self.rig.camera,
+            &frame.image,
             frame.t_world_cam,
-            &pts,
-            &self.cfg.tracking,
-        );
-        let s = MapSnapshot {
-            seq: 0,
-            keyframe_id: id,
-            keyframe_t: frame.t,
-            keyframe_image: frame.image.clone(),
-            map: Arc::new(map),
-            views: 0,
-            forward_views: 0,
-            time_s: 0.0,
+            map,
+            median_inv,
+        ) else {
+            return;
         };
         let x = *self.tracker.state();
         let mut cov = *self.tracker.covariance();
-        let var = b.reinit_velocity_free_std_m_s.powi(2);
+        let var = self.cfg.bootstrap.reinit_velocity_free_std_m_s.powi(2);
         for i in 6..9 {
             cov[(i, i)] = cov[(i, i)].max(var);
         }

@@ -154,7 +154,8 @@ pub struct BootstrapConfig {
     /// error after the loss. Counted as a reset either way.
     pub relocalise: bool,
     /// …on the keyframes of the keyframe window too (the latest ones, nearest to the loss; while
-    /// tracking, a return to one of them is not a return to a less drifted map).
+    /// tracking, a return to one of them is not a return to a less drifted map) — the keyframe
+    /// lost among them, which is stored at the loss for this.
     pub relocalise_in_window: bool,
     /// …and, failing that, on every frame while a first map is being started in flight.
     pub relocalise_while_rebuilding: bool,
@@ -1067,13 +1068,10 @@ impl Odometry {
                     && self.resume_tracking(s, reusing)
                 {
                     self.stats.resumes += 1;
-                } else if self.cfg.bootstrap.relocalise && self.switch_to_stored_keyframe(true) {
+                } else if self.relocalise_after_loss() {
                     // Tracked from the next frame on against a stored keyframe covering the
                     // IMU-predicted view, on probation (no keyframe left to go back to: a failed
                     // probation is a loss again).
-                    self.phase = Phase::Tracking;
-                    self.consecutive_flagged = 0;
-                    self.stats.relocalisations += 1;
                 } else {
                     self.phase = Phase::Initializing;
                     self.restart_first_map(&frame, false);
@@ -1290,24 +1288,29 @@ impl Odometry {
         ))
     }
 
-    /// While a first map is being started in flight: if a stored keyframe covers the
-    /// IMU-predicted view (`relocalise_*`), it is tracked instead and the first map is dropped.
+    /// After a loss (`relocalise`): if a stored keyframe covers the IMU-predicted view
+    /// (`relocalise_*`), it is tracked from the next frame on and the phase is `Tracking`.
+    fn relocalise_after_loss(&mut self) -> bool {
+        if !(self.cfg.bootstrap.relocalise && self.switch_to_stored_keyframe(true)) {
+            return false;
+        }
+        self.phase = Phase::Tracking;
+        self.consecutive_flagged = 0;
+        self.stats.relocalisations += 1;
+        true
+    }
+
+    /// While a first map is being started in flight: relocalised instead
+    /// ([`Odometry::relocalise_after_loss`]), the first map is dropped.
     fn relocalise_instead_of_first_map(&mut self) -> bool {
-        if !self.cfg.bootstrap.relocalise || self.refining_takeoff(None) {
+        if self.refining_takeoff(None) || !self.relocalise_after_loss() {
             return false;
         }
-        let pending = self.pending_kf.take();
-        if !self.switch_to_stored_keyframe(true) {
-            self.pending_kf = pending;
-            return false;
-        }
+        self.pending_kf = None;
         self.takeoff = None;
         self.kf_record = None;
         self.reinit_kf = None;
         self.reset_window();
-        self.phase = Phase::Tracking;
-        self.consecutive_flagged = 0;
-        self.stats.relocalisations += 1;
         true
     }
 
