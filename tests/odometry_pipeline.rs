@@ -371,7 +371,11 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     let reloc = relocalised.recoveries();
     assert_eq!(reloc.recovered_s.len(), 1, "{:?}", reloc.recovered_s);
     assert_eq!(reloc.unrecovered_s, None);
-    ate_near_clear(&dir, &a, &relocalised, "relocalised", (1.5, 0.005));
+    // (1.28 cm against 0.30 clear since the window estimates each map's scale, `[window]
+    // map_scale`: the keyframes after the relocalisation grow from the stored map, whose scale
+    // the window ties to the chain's only within 5 %, and 1.2 s of flight are left to read it;
+    // 0.73 cm without it.)
+    ate_near_clear(&dir, &a, &relocalised, "relocalised", (1.5, 0.01));
     // With neither, a new first map is built from the IMU after the loss instead — as it is
     // (the default) or refined like the take-off's from the velocity dead-reckoned through the
     // loss.

@@ -179,6 +179,14 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         std::fs::write(&p, imu_scale_csv(&out.odometry.imu_scale))
             .with_context(|| format!("writing {}", p.display()))?;
     }
+    if !out.odometry.window_map_log_scales.is_empty() {
+        let p = a.out.join("window_scale.csv");
+        let mut csv = String::from("t_ns,log_scale\n");
+        for (t, l) in &out.odometry.window_map_log_scales {
+            csv.push_str(&format!("{},{:.5}\n", t.0, l));
+        }
+        std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
+    }
     let csv_path = a.out.join("frames.csv");
     std::fs::write(&csv_path, frames_csv(&out))
         .with_context(|| format!("writing {}", csv_path.display()))?;

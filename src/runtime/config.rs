@@ -95,6 +95,16 @@ impl Config {
                 "takeoff_bundle_smoothness_rel_std",
                 self.bootstrap.takeoff_bundle_smoothness_rel_std,
             ),
+            (
+                "window",
+                "map_scale_step_std",
+                self.window.map_scale_step_std,
+            ),
+            (
+                "window",
+                "map_scale_initial_std",
+                self.window.map_scale_initial_std,
+            ),
         ];
         for (table, key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -102,8 +112,22 @@ impl Config {
                     .map(|l| format!("line {l}: "))
                     .unwrap_or_default();
                 return Err(format!(
-                    "{at}[{table}] {key} = {v}: must be > 0 (a relative standard deviation; \
-                     0 would hold every inverse depth rigid)"
+                    "{at}[{table}] {key} = {v}: must be > 0 (a standard deviation; 0 would \
+                     hold what it weights rigid)"
+                ));
+            }
+        }
+        let w = &self.window;
+        for (key, v, max) in [
+            ("map_scale_gain", w.map_scale_gain, 1.0),
+            ("map_scale_max_step", w.map_scale_max_step, 0.5),
+        ] {
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
+                let at = key_line(text, "window", key)
+                    .map(|l| format!("line {l}: "))
+                    .unwrap_or_default();
+                return Err(format!(
+                    "{at}[window] {key} = {v}: must be within 0 … {max}"
                 ));
             }
         }
@@ -160,6 +184,13 @@ mod tests {
             Config::parse("[bootstrap]\ntakeoff_bundle_smoothness_rel_std = -1.0\n").unwrap_err();
         assert!(e.contains("line 2") && e.contains("must be > 0"), "{e}");
         assert!(Config::parse("[keyframe_bundle]\nsmoothness_rel_std = 0.3\n").is_ok());
+        let e = Config::parse("[window]\nmap_scale = true\nmap_scale_gain = 1.5\n").unwrap_err();
+        assert!(
+            e.contains("line 3") && e.contains("[window] map_scale_gain"),
+            "{e}"
+        );
+        let e = Config::parse("[window]\nmap_scale_step_std = 0.0\n").unwrap_err();
+        assert!(e.contains("line 2") && e.contains("must be > 0"), "{e}");
     }
 
     #[test]

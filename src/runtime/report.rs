@@ -118,6 +118,12 @@ pub struct ReplayReport {
     pub window_baseline_ratio_p10: Option<f64>,
     pub window_baseline_ratio_p50: Option<f64>,
     pub window_baseline_ratio_p90: Option<f64>,
+    /// `[window] map_scale_gain`: keyframe maps whose scale was corrected by the window's
+    /// estimate, and the factor their depths were multiplied by: 10th / 50th / 90th percentiles.
+    pub map_scale_corrections: usize,
+    pub map_scale_correction_p10: Option<f64>,
+    pub map_scale_correction_p50: Option<f64>,
+    pub map_scale_correction_p90: Option<f64>,
     /// In-flight keyframe adjustments applied (`[keyframe_bundle]`, on a thread of their own
     /// started when a new keyframe is installed), their wall time, ms, and the median over
     /// keyframes of each adjustment's median relative inverse-depth change, %; take-off
@@ -214,6 +220,13 @@ impl ReplayReport {
         let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
         let window_ratio = sorted(out.odometry.window_baseline_ratios.iter().copied());
         let window_ratio_pct = |p: f64| percentile_if_any(&window_ratio, p);
+        let map_scale = sorted(
+            out.odometry
+                .window_map_scale_corrections
+                .iter()
+                .map(|c| (-c).exp()),
+        );
+        let map_scale_pct = |p: f64| percentile_if_any(&map_scale, p);
         let rest = out.odometry.rest_imu_density;
         let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
         let map_lat = sorted(
@@ -341,6 +354,10 @@ impl ReplayReport {
             window_baseline_ratio_p10: window_ratio_pct(10.0),
             window_baseline_ratio_p50: window_ratio_pct(50.0),
             window_baseline_ratio_p90: window_ratio_pct(90.0),
+            map_scale_corrections: map_scale.len(),
+            map_scale_correction_p10: map_scale_pct(10.0),
+            map_scale_correction_p50: map_scale_pct(50.0),
+            map_scale_correction_p90: map_scale_pct(90.0),
             keyframe_bundles: kb_ms.len(),
             keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
             keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),
@@ -663,6 +680,17 @@ impl ReplayReport {
                 ) {
                     text += &format!(
                         ", baseline solved/tracked p10/p50/p90 {p10:.3} / {p50:.3} / {p90:.3}"
+                    );
+                }
+                if let (Some(p10), Some(p50), Some(p90)) = (
+                    self.map_scale_correction_p10,
+                    self.map_scale_correction_p50,
+                    self.map_scale_correction_p90,
+                ) {
+                    text += &format!(
+                        ", {} maps rescaled, depth factor p10/p50/p90 {p10:.3} / {p50:.3} / \
+                         {p90:.3}",
+                        self.map_scale_corrections
                     );
                 }
                 text

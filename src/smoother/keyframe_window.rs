@@ -52,6 +52,28 @@ pub struct WindowConfig {
     pub imu_noise_scale: f64,
     /// Levenberg-Marquardt iterations per solve.
     pub max_iterations: usize,
+    /// Estimate each keyframe map's scale in the window: a log-scale λ per keyframe (its map is
+    /// `e^λ` times metric), which the relative poses tracked against that map are measured in
+    /// ([`RelativePose::residual_scaled`]), joined from keyframe to keyframe by a random walk of
+    /// `map_scale_step_std` — a new map inherits its predecessor's scale through the mapper's
+    /// propagation and the views tracked against it. The IMU then reads one scale over the whole
+    /// window instead of correcting every baseline by itself. On since 2026-11-28 (with
+    /// `map_scale_gain` 0.5; docs/odometry-log.md, *The window reads each map's scale*).
+    pub map_scale: bool,
+    /// Standard deviation of λ's step from one keyframe's map to the next.
+    pub map_scale_step_std: f64,
+    /// Standard deviation of λ at a window (re)start.
+    pub map_scale_initial_std: f64,
+    /// Fraction of the estimated λ of the keyframe map tracked that is corrected when the next
+    /// keyframe is started (its depths scaled by `e^{−gain·λ}` in the tracker and the mapper, so
+    /// the new map is propagated from a corrected one); 0 = estimate only.
+    pub map_scale_gain: f64,
+    /// At most this much of λ is corrected per keyframe.
+    pub map_scale_max_step: f64,
+    /// Only the part of λ beyond this many of its standard deviations (the window's marginal
+    /// σ of λ) is corrected: `c = gain · sign(λ) · max(0, |λ| − k σ)`, so a map the window cannot
+    /// tell from metric is left alone.
+    pub map_scale_dead_zone_sigmas: f64,
 }
 
 impl Default for WindowConfig {
@@ -64,6 +86,12 @@ impl Default for WindowConfig {
             visual_huber_sigmas: 0.0,
             imu_noise_scale: 3.0,
             max_iterations: 8,
+            map_scale: true,
+            map_scale_step_std: 0.02,
+            map_scale_initial_std: 0.05,
+            map_scale_gain: 0.5,
+            map_scale_max_step: 0.05,
+            map_scale_dead_zone_sigmas: 0.0,
         }
     }
 }
@@ -73,18 +101,37 @@ impl Default for WindowConfig {
 struct Node {
     id: u32,
     state: FrameState,
+    /// Log-scale λ of this keyframe's map (0 unless `map_scale`).
+    log_scale: f64,
+    /// The correction applied to the predecessor's map when this keyframe was started: this
+    /// map's λ is expected at the predecessor's minus it.
+    scale_correction: f64,
+    /// The relative pose to this keyframe was tracked against a map other than the
+    /// predecessor's (a stored keyframe's, which also seeds this keyframe's map): it is measured
+    /// at this keyframe's λ, and λ is not tied to the predecessor's by the random walk step but
+    /// only by `map_scale_initial_std`.
+    visual_on_own_map: bool,
     /// IMU from the previous node to this one (linearised at the previous node's bias then).
     imu: Option<Preintegration>,
     /// Relative pose previous → this, from tracking.
     visual: Option<RelativePose>,
 }
 
-/// Gaussian prior on the first `lin.len()` nodes: `E(δ) = ½ δᵀ H δ − gᵀ δ`, `δ = x ⊟ lin`.
+/// Gaussian prior on the first `lin.len()` nodes: `E(δ) = ½ δᵀ H δ − gᵀ δ`, `δ = x ⊟ lin` (per
+/// node its 15 state rows, then with `map_scale` its λ).
 #[derive(Clone, Debug)]
 struct Prior {
     h: DMatrix<f64>,
     g: DVector<f64>,
     lin: Vec<FrameState>,
+    lin_log_scale: Vec<f64>,
+}
+
+/// The window's unknowns: each node's state and map log-scale.
+#[derive(Clone, Debug)]
+struct Unknowns {
+    states: Vec<FrameState>,
+    log_scales: Vec<f64>,
 }
 
 /// What one [`KeyframeWindow::solve`] did.
@@ -139,22 +186,37 @@ impl KeyframeWindow {
         self.nodes.is_empty()
     }
 
+    /// Unknowns per node: the 15 of the state, and λ with `map_scale`.
+    fn block(&self) -> usize {
+        if self.cfg.map_scale { 16 } else { 15 }
+    }
+
     /// Restarts the window at keyframe `id` with state `x` and covariance `cov` (bootstrap, or a
-    /// re-initialisation after tracking loss).
+    /// re-initialisation after tracking loss); its map's λ starts at 0.
     pub fn reset(&mut self, id: u32, x: FrameState, cov: &Matrix15) {
         self.nodes.clear();
         let h = cov
             .cholesky()
             .map(|c| c.inverse())
             .unwrap_or_else(|| Matrix15::identity() * 1e6);
+        let b = self.block();
+        let mut hp = DMatrix::zeros(b, b);
+        hp.view_mut((0, 0), (15, 15)).copy_from(&h);
+        if b == 16 {
+            hp[(15, 15)] = self.cfg.map_scale_initial_std.max(1e-6).powi(-2);
+        }
         self.prior = Some(Prior {
-            h: DMatrix::from_iterator(15, 15, h.iter().copied()),
-            g: DVector::zeros(15),
+            h: hp,
+            g: DVector::zeros(b),
             lin: vec![x],
+            lin_log_scale: vec![0.0],
         });
         self.nodes.push_back(Node {
             id,
             state: x,
+            log_scale: 0.0,
+            scale_correction: 0.0,
+            visual_on_own_map: false,
             imu: None,
             visual: None,
         });
@@ -163,6 +225,54 @@ impl KeyframeWindow {
     /// The state of keyframe `id`, if it is in the window.
     pub fn state(&self, id: u32) -> Option<&FrameState> {
         self.nodes.iter().find(|n| n.id == id).map(|n| &n.state)
+    }
+
+    /// The estimated log-scale λ of keyframe `id`'s map (`e^λ` = its size over the metric one;
+    /// 0 without `map_scale`), if it is in the window.
+    pub fn log_scale(&self, id: u32) -> Option<f64> {
+        self.nodes.iter().find(|n| n.id == id).map(|n| n.log_scale)
+    }
+
+    /// The newest keyframe's relative pose was tracked against a stored keyframe's map, which
+    /// seeds the newest's map (a return to a stored keyframe): see `Node::visual_on_own_map`.
+    pub fn set_newest_visual_on_own_map(&mut self) {
+        if let Some(n) = self.nodes.back_mut() {
+            n.visual_on_own_map = true;
+        }
+    }
+
+    /// The standard deviation of keyframe `id`'s λ in the window (the marginal of the window's
+    /// information at the current solution), if it is in the window and `map_scale` is on.
+    pub fn log_scale_std(&self, id: u32) -> Option<f64> {
+        if self.block() != 16 {
+            return None;
+        }
+        let k = self.nodes.iter().position(|n| n.id == id)?;
+        let (mut h, _, _) = self.linearise(&self.unknowns());
+        for d in 0..h.nrows() {
+            h[(d, d)] += 1e-12;
+        }
+        let n = h.nrows();
+        let chol = h.cholesky()?;
+        let mut e = DVector::zeros(n);
+        let i = self.block() * k + 15;
+        e[i] = 1.0;
+        let var = chol.solve(&e)[i];
+        (var.is_finite() && var > 0.0).then(|| var.sqrt())
+    }
+
+    /// The map of the newest keyframe's predecessor was scaled by `e^{−c}` when the newest was
+    /// started (so the newest's map comes from a corrected one): the random walk between them
+    /// expects `λ_newest = λ_prev − c`, and the newest's λ starts there.
+    pub fn set_newest_map_correction(&mut self, c: f64) {
+        let n = self.nodes.len();
+        if n < 2 || !c.is_finite() {
+            return;
+        }
+        let prev = self.nodes[n - 2].log_scale;
+        let newest = &mut self.nodes[n - 1];
+        newest.scale_correction = c;
+        newest.log_scale = prev - c;
     }
 
     /// Moves keyframe `id`'s state to `x` (adjusted elsewhere); the factors and the prior stay.
@@ -187,14 +297,15 @@ impl KeyframeWindow {
         for n in self.nodes.iter_mut() {
             move_state(&mut n.state);
         }
+        let b = self.block();
         if let Some(p) = self.prior.as_mut() {
             p.lin.iter_mut().for_each(move_state);
             // δv' = R δv: H' = T H Tᵀ, g' = T g with T block-diagonal.
             let r = c.rotation.to_rotation_matrix().into_inner();
             let m = p.lin.len();
-            let mut t = DMatrix::<f64>::identity(15 * m, 15 * m);
+            let mut t = DMatrix::<f64>::identity(b * m, b * m);
             for k in 0..m {
-                t.view_mut((15 * k + 6, 15 * k + 6), (3, 3)).copy_from(&r);
+                t.view_mut((b * k + 6, b * k + 6), (3, 3)).copy_from(&r);
             }
             p.h = &t * &p.h * t.transpose();
             p.g = &t * &p.g;
@@ -207,9 +318,9 @@ impl KeyframeWindow {
     }
 
     /// Adds keyframe `id` at state `x` (the tracker's estimate), joined to the newest keyframe by
-    /// the IMU preintegrated between them and, if tracked against it, by the relative pose.
-    /// Marginalises the oldest keyframe first if the window is full. Does nothing on an empty
-    /// window (call [`KeyframeWindow::reset`] first).
+    /// the IMU preintegrated between them and, if tracked against it, by the relative pose; its
+    /// map's λ starts at the newest's. Marginalises the oldest keyframe first if the window is
+    /// full. Does nothing on an empty window (call [`KeyframeWindow::reset`] first).
     pub fn push(
         &mut self,
         id: u32,
@@ -217,31 +328,42 @@ impl KeyframeWindow {
         imu: Preintegration,
         visual: Option<RelativePose>,
     ) {
-        if self.nodes.is_empty() {
+        let Some(log_scale) = self.nodes.back().map(|n| n.log_scale) else {
             return;
-        }
+        };
         while self.nodes.len() >= self.cfg.max_keyframes.max(2) {
             self.marginalise_oldest();
         }
         self.nodes.push_back(Node {
             id,
             state: x,
+            log_scale,
+            scale_correction: 0.0,
+            visual_on_own_map: false,
             imu: Some(imu),
             visual,
         });
     }
 
+    fn unknowns(&self) -> Unknowns {
+        Unknowns {
+            states: self.nodes.iter().map(|n| n.state).collect(),
+            log_scales: self.nodes.iter().map(|n| n.log_scale).collect(),
+        }
+    }
+
     /// Levenberg-Marquardt on all keyframe states of the window.
     pub fn solve(&mut self) -> SolveSummary {
-        let mut states: Vec<FrameState> = self.nodes.iter().map(|n| n.state).collect();
-        let (mut h, mut rhs, mut cost) = self.linearise(&states);
+        let mut x = self.unknowns();
+        let (mut h, mut rhs, mut cost) = self.linearise(&x);
         let mut summary = SolveSummary {
             cost_before: cost,
             cost_after: cost,
             ..Default::default()
         };
         let mut lambda = 1e-6;
-        let n = states.len();
+        let n = x.states.len();
+        let b = self.block();
         for _ in 0..self.cfg.max_iterations {
             let mut hd = h.clone();
             for k in 0..hd.nrows() {
@@ -253,18 +375,22 @@ impl KeyframeWindow {
                 continue;
             };
             let dx = chol.solve(&rhs);
-            let cand: Vec<FrameState> = (0..n)
-                .map(|k| {
-                    states[k].boxplus(&Vector15::from_iterator(
-                        dx.rows(15 * k, 15).iter().copied(),
-                    ))
-                })
-                .collect();
+            let cand = Unknowns {
+                states: (0..n)
+                    .map(|k| {
+                        x.states[k]
+                            .boxplus(&Vector15::from_iterator(dx.rows(b * k, 15).iter().copied()))
+                    })
+                    .collect(),
+                log_scales: (0..n)
+                    .map(|k| x.log_scales[k] + if b == 16 { dx[b * k + 15] } else { 0.0 })
+                    .collect(),
+            };
             let (h2, rhs2, cost2) = self.linearise(&cand);
             summary.iterations += 1;
             if cost2.is_finite() && cost2 <= cost {
                 let small = dx.amax() < 1e-9;
-                states = cand;
+                x = cand;
                 h = h2;
                 rhs = rhs2;
                 cost = cost2;
@@ -280,39 +406,45 @@ impl KeyframeWindow {
             }
         }
         summary.cost_after = cost;
-        for (node, x) in self.nodes.iter_mut().zip(states) {
-            node.state = x;
+        for ((node, s), l) in self.nodes.iter_mut().zip(x.states).zip(x.log_scales) {
+            node.state = s;
+            node.log_scale = l;
         }
         summary
     }
 
-    /// Normal equations `H Δ = rhs` (rhs = −gradient) and cost at `states`.
-    fn linearise(&self, states: &[FrameState]) -> (DMatrix<f64>, DVector<f64>, f64) {
-        self.linearise_parts(states, states.len())
+    /// Normal equations `H Δ = rhs` (rhs = −gradient) and cost at `x`.
+    fn linearise(&self, x: &Unknowns) -> (DMatrix<f64>, DVector<f64>, f64) {
+        self.linearise_parts(x, x.states.len())
     }
 
     /// As [`Self::linearise`] with the prior and only the factors of nodes `1..factor_nodes` (each
     /// node holds the factors to its predecessor).
     fn linearise_parts(
         &self,
-        states: &[FrameState],
+        x: &Unknowns,
         factor_nodes: usize,
     ) -> (DMatrix<f64>, DVector<f64>, f64) {
+        let states = &x.states;
         let n = states.len();
-        let mut h = DMatrix::zeros(15 * n, 15 * n);
-        let mut rhs = DVector::zeros(15 * n);
+        let b = self.block();
+        let mut h = DMatrix::zeros(b * n, b * n);
+        let mut rhs = DVector::zeros(b * n);
         let mut cost = 0.0;
         if let Some(p) = &self.prior {
             let m = p.lin.len().min(n);
-            let mut d = DVector::zeros(15 * m);
-            for (k, (x, lin)) in states.iter().zip(&p.lin).take(m).enumerate() {
-                d.rows_mut(15 * k, 15).copy_from(&boxminus(x, lin));
+            let mut d = DVector::zeros(b * m);
+            for (k, (xk, lin)) in states.iter().zip(&p.lin).take(m).enumerate() {
+                d.rows_mut(b * k, 15).copy_from(&boxminus(xk, lin));
+                if b == 16 {
+                    d[b * k + 15] = x.log_scales[k] - p.lin_log_scale[k];
+                }
             }
             let hd = &p.h * &d;
             cost += 0.5 * d.dot(&hd) - p.g.dot(&d);
-            h.view_mut((0, 0), (15 * m, 15 * m)).add_assign(&p.h);
+            h.view_mut((0, 0), (b * m, b * m)).add_assign(&p.h);
             let r = &p.g - hd;
-            rhs.rows_mut(0, 15 * m).add_assign(&r);
+            rhs.rows_mut(0, b * m).add_assign(&r);
         }
         for j in 1..factor_nodes.min(n) {
             let i = j - 1;
@@ -334,12 +466,16 @@ impl KeyframeWindow {
                 let ji = imu_jacobian_i(pre, xi, xj);
                 let jj = imu_jacobian_j(pre, xi, xj);
                 cost += 0.5 * r.dot(&(w * r));
-                add_pair(&mut h, &mut rhs, i, j, &ji, &jj, &w, &r);
+                add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
             }
             if let Some(vis) = &node.visual {
                 let mut w = self.visual_weight(&vis.information);
-                let r = vis.residual(xi, xj);
-                let (ji, jj) = vis.jacobians(xi, xj);
+                // The relative pose i → j was tracked against keyframe i's map (or, across a
+                // return, against the stored map that seeds j's).
+                let k_map = if node.visual_on_own_map { j } else { i };
+                let lk = x.log_scales[k_map];
+                let r = vis.residual_scaled(xi, xj, lk);
+                let (ji, jj, jl) = vis.jacobians_scaled(xi, xj, lk);
                 // Huber on the Mahalanobis norm (IRLS weight k/‖r‖ beyond k).
                 let s = r.dot(&(w * r));
                 let k = self.cfg.visual_huber_sigmas;
@@ -350,7 +486,40 @@ impl KeyframeWindow {
                 } else {
                     cost += 0.5 * s;
                 }
-                add_pair(&mut h, &mut rhs, i, j, &ji, &jj, &w, &r);
+                add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
+                if b == 16 {
+                    // λ's column of the same factor.
+                    let (oi, oj, ol) = (b * i, b * j, b * k_map + 15);
+                    let wl = w * jl;
+                    h[(ol, ol)] += jl.dot(&wl);
+                    let hli = ji.transpose() * wl;
+                    let hlj = jj.transpose() * wl;
+                    for c in 0..15 {
+                        h[(oi + c, ol)] += hli[c];
+                        h[(ol, oi + c)] += hli[c];
+                        h[(oj + c, ol)] += hlj[c];
+                        h[(ol, oj + c)] += hlj[c];
+                    }
+                    rhs[ol] -= wl.dot(&r);
+                }
+            }
+            if b == 16 {
+                // The random walk of the map's scale from keyframe i to j.
+                let std = if node.visual_on_own_map {
+                    self.cfg.map_scale_initial_std
+                } else {
+                    self.cfg.map_scale_step_std
+                };
+                let w = std.max(1e-6).powi(-2);
+                let r = x.log_scales[j] - x.log_scales[i] + node.scale_correction;
+                let (li, lj) = (b * i + 15, b * j + 15);
+                cost += 0.5 * w * r * r;
+                h[(li, li)] += w;
+                h[(lj, lj)] += w;
+                h[(li, lj)] -= w;
+                h[(lj, li)] -= w;
+                rhs[li] += w * r;
+                rhs[lj] -= w * r;
             }
         }
         (h, rhs, cost)
@@ -372,22 +541,23 @@ impl KeyframeWindow {
     /// Schur-complements the oldest node out of the system linearised at the current states; the
     /// result is the prior on the remaining nodes (at their current states).
     fn marginalise_oldest(&mut self) {
-        let states: Vec<FrameState> = self.nodes.iter().map(|n| n.state).collect();
-        let n = states.len();
+        let x = self.unknowns();
+        let n = x.states.len();
         if n < 2 {
             return;
         }
+        let b = self.block();
         // The prior and the factors touching node 0 (those between nodes 0 and 1); the factors
         // among the others stay factors.
-        let (h, rhs, _) = self.linearise_parts(&states, 2);
-        let r = 15 * (n - 1);
-        let hmm = h.view((0, 0), (15, 15)).into_owned();
-        let hmr = h.view((0, 15), (15, r)).into_owned();
-        let hrr = h.view((15, 15), (r, r)).into_owned();
-        let bm = rhs.rows(0, 15).into_owned();
-        let br = rhs.rows(15, r).into_owned();
+        let (h, rhs, _) = self.linearise_parts(&x, 2);
+        let r = b * (n - 1);
+        let hmm = h.view((0, 0), (b, b)).into_owned();
+        let hmr = h.view((0, b), (b, r)).into_owned();
+        let hrr = h.view((b, b), (r, r)).into_owned();
+        let bm = rhs.rows(0, b).into_owned();
+        let br = rhs.rows(b, r).into_owned();
         let mut hmm_reg = hmm.clone();
-        for k in 0..15 {
+        for k in 0..b {
             hmm_reg[(k, k)] += 1e-9;
         }
         let Some(chol) = hmm_reg.cholesky() else {
@@ -407,17 +577,19 @@ impl KeyframeWindow {
         self.prior = Some(Prior {
             h: hp,
             g: gp,
-            lin: states[1..].to_vec(),
+            lin: x.states[1..].to_vec(),
+            lin_log_scale: x.log_scales[1..].to_vec(),
         });
     }
 }
 
 #[allow(clippy::too_many_arguments)]
+/// Adds a factor between the unknowns at offsets `oi` and `oj` (each a 15-state block).
 fn add_pair<const R: usize>(
     h: &mut DMatrix<f64>,
     rhs: &mut DVector<f64>,
-    i: usize,
-    j: usize,
+    oi: usize,
+    oj: usize,
     ji: &nalgebra::SMatrix<f64, R, 15>,
     jj: &nalgebra::SMatrix<f64, R, 15>,
     w: &nalgebra::SMatrix<f64, R, R>,
@@ -426,7 +598,6 @@ fn add_pair<const R: usize>(
     let wji = w * ji;
     let wjj = w * jj;
     let wr = w * r;
-    let (oi, oj) = (15 * i, 15 * j);
     h.view_mut((oi, oi), (15, 15))
         .add_assign(&(ji.transpose() * wji));
     h.view_mut((oj, oj), (15, 15))

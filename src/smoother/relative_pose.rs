@@ -28,10 +28,31 @@ fn rot(x: &FrameState) -> Matrix3<f64> {
 impl RelativePose {
     /// The residual `r` of the module documentation.
     pub fn residual(&self, xi: &FrameState, xj: &FrameState) -> Vector6<f64> {
+        self.residual_scaled(xi, xj, 0.0)
+    }
+
+    /// Jacobians of [`RelativePose::residual`] w.r.t. the increments of frames i and j (only the
+    /// pose columns are non-zero).
+    pub fn jacobians(&self, xi: &FrameState, xj: &FrameState) -> (Jacobian6x15, Jacobian6x15) {
+        let (ji, jj, _) = self.jacobians_scaled(xi, xj, 0.0);
+        (ji, jj)
+    }
+
+    /// The residual when the measurement was tracked against a map whose scale is `e^λ` times
+    /// the metric one (`log_scale` = λ; a map too large by 5 % has λ = ln 1.05): the tracked
+    /// translation is then `e^λ` times the true one, so the translation rows compare
+    /// `e^λ R_iᵀ (p_j − p_i)` with `t_z`: `r_t = R_zᵀ (e^λ R_iᵀ (p_j − p_i) − t_z)`. At λ = 0 this
+    /// is [`RelativePose::residual`] exactly.
+    pub fn residual_scaled(
+        &self,
+        xi: &FrameState,
+        xj: &FrameState,
+        log_scale: f64,
+    ) -> Vector6<f64> {
         let (ri, rj) = (rot(xi), rot(xj));
         let rz = *self.t_i_j.rotation.to_rotation_matrix().matrix();
         let tz = self.t_i_j.translation.vector;
-        let t_rel = ri.transpose() * (xj.nav.p_world_m - xi.nav.p_world_m);
+        let t_rel = ri.transpose() * (xj.nav.p_world_m - xi.nav.p_world_m) * log_scale.exp();
         let mut r = Vector6::zeros();
         r.fixed_rows_mut::<3>(0)
             .copy_from(&log_so3(&(rz.transpose() * ri.transpose() * rj)));
@@ -40,13 +61,19 @@ impl RelativePose {
         r
     }
 
-    /// Jacobians of [`RelativePose::residual`] w.r.t. the increments of frames i and j (only the
-    /// pose columns are non-zero).
-    pub fn jacobians(&self, xi: &FrameState, xj: &FrameState) -> (Jacobian6x15, Jacobian6x15) {
+    /// Jacobians of [`RelativePose::residual_scaled`] w.r.t. the increments of frames i and j
+    /// and w.r.t. λ.
+    pub fn jacobians_scaled(
+        &self,
+        xi: &FrameState,
+        xj: &FrameState,
+        log_scale: f64,
+    ) -> (Jacobian6x15, Jacobian6x15, Vector6<f64>) {
         let (ri, rj) = (rot(xi), rot(xj));
+        let s = log_scale.exp();
         let rz = *self.t_i_j.rotation.to_rotation_matrix().matrix();
         let r_rel = ri.transpose() * rj;
-        let t_rel: Vector3<f64> = ri.transpose() * (xj.nav.p_world_m - xi.nav.p_world_m);
+        let t_rel: Vector3<f64> = ri.transpose() * (xj.nav.p_world_m - xi.nav.p_world_m) * s;
         let r_rot = log_so3(&(rz.transpose() * r_rel));
         let jr_inv = right_jacobian_inv(&r_rot);
         let mut ji = Jacobian6x15::zeros();
@@ -57,14 +84,17 @@ impl RelativePose {
         // R_iᵀ ← Exp(−δθ_i) R_iᵀ: t_rel ← t_rel + [t_rel]× δθ_i.
         ji.fixed_view_mut::<3, 3>(3, 0)
             .copy_from(&(rz.transpose() * hat(&t_rel)));
-        // p_i ← p_i + R_i δt_i: t_rel ← t_rel − δt_i.
+        // p_i ← p_i + R_i δt_i: t_rel ← t_rel − e^λ δt_i.
         ji.fixed_view_mut::<3, 3>(3, 3)
-            .copy_from(&(-rz.transpose()));
+            .copy_from(&(-rz.transpose() * s));
         jj.fixed_view_mut::<3, 3>(0, 0).copy_from(&jr_inv);
-        // p_j ← p_j + R_j δt_j: t_rel ← t_rel + R_rel δt_j.
+        // p_j ← p_j + R_j δt_j: t_rel ← t_rel + e^λ R_rel δt_j.
         jj.fixed_view_mut::<3, 3>(3, 3)
-            .copy_from(&(rz.transpose() * r_rel));
-        (ji, jj)
+            .copy_from(&(rz.transpose() * r_rel * s));
+        let mut jl = Vector6::zeros();
+        jl.fixed_rows_mut::<3>(3)
+            .copy_from(&(rz.transpose() * t_rel));
+        (ji, jj, jl)
     }
 }
 
@@ -123,5 +153,43 @@ mod tests {
         let nj = numeric(|d| z.residual(&xi, &xj.boxplus(d)));
         assert!((ji - ni).abs().max() < 1e-6, "d/di\n{ji}\nnumeric\n{ni}");
         assert!((jj - nj).abs().max() < 1e-6, "d/dj\n{jj}\nnumeric\n{nj}");
+    }
+
+    #[test]
+    fn the_scaled_residual_vanishes_at_the_scaled_measurement_and_its_jacobians_match_numeric() {
+        let xi = state(Vector3::new(0.3, -0.2, 1.1), Vector3::new(1.0, -2.0, 0.5));
+        let xj = state(Vector3::new(0.1, 0.25, 0.9), Vector3::new(1.4, -1.7, 0.6));
+        let exact =
+            Isometry3::from_parts(Translation3::from(xi.nav.p_world_m), xi.nav.r_world_body)
+                .inverse()
+                * Isometry3::from_parts(Translation3::from(xj.nav.p_world_m), xj.nav.r_world_body);
+        // Tracked against a map 8 % too large.
+        let lambda = 1.08f64.ln();
+        let mut scaled = exact;
+        scaled.translation.vector *= 1.08;
+        let z = RelativePose {
+            t_i_j: scaled,
+            information: Matrix6::identity(),
+        };
+        assert!(z.residual_scaled(&xi, &xj, lambda).norm() < 1e-12);
+        assert!(z.residual(&xi, &xj).norm() > 1e-3);
+        let z = RelativePose {
+            t_i_j: scaled
+                * Isometry3::new(
+                    Vector3::new(0.05, -0.02, 0.03),
+                    Vector3::new(0.02, 0.01, -0.03),
+                ),
+            ..z
+        };
+        let l = 0.03;
+        let (ji, jj, jl) = z.jacobians_scaled(&xi, &xj, l);
+        let ni = numeric(|d| z.residual_scaled(&xi.boxplus(d), &xj, l));
+        let nj = numeric(|d| z.residual_scaled(&xi, &xj.boxplus(d), l));
+        let h = 1e-7;
+        let nl =
+            (z.residual_scaled(&xi, &xj, l + h) - z.residual_scaled(&xi, &xj, l - h)) / (2.0 * h);
+        assert!((ji - ni).abs().max() < 1e-6, "d/di\n{ji}\nnumeric\n{ni}");
+        assert!((jj - nj).abs().max() < 1e-6, "d/dj\n{jj}\nnumeric\n{nj}");
+        assert!((jl - nl).abs().max() < 1e-6, "d/dλ\n{jl}\nnumeric\n{nl}");
     }
 }

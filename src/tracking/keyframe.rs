@@ -104,6 +104,26 @@ impl Keyframe {
         }
     }
 
+    /// Multiplies every point's depth by `factor` (> 0) about the keyframe camera: the map's
+    /// scale corrected (`[window] map_scale_gain`). Rays, intensities and weights stay; of the
+    /// intensity Jacobian (eq. 26) only the translation columns change, as `1/z`: it is
+    /// [`Keyframe::new`] of the scaled points without re-sampling the pyramid.
+    pub fn scale_depths(&mut self, factor: f64) {
+        if !(factor.is_finite() && factor > 0.0) {
+            return;
+        }
+        let (f, inv) = (factor as f32, (1.0 / factor) as f32);
+        for l in &mut self.levels {
+            for p in &mut l.p_kf_m {
+                p.iter_mut().for_each(|c| *c *= f);
+            }
+            for j in &mut l.jacobian {
+                j[3..].iter_mut().for_each(|c| *c *= inv);
+            }
+        }
+        self.median_depth_m *= factor;
+    }
+
     /// Number of level-0 points.
     pub fn num_points(&self) -> usize {
         self.levels.first().map_or(0, LevelPoints::len)
@@ -382,6 +402,60 @@ mod tests {
             }
         }
         assert!((kf.median_depth_m - 2.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_keyframe_with_scaled_depths_has_the_jacobians_of_the_scaled_points() {
+        let cam = CameraModel::euroc_cam0();
+        let img = smooth(cam.width, cam.height);
+        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        pyr.fill_from_f32(&img);
+        let cfg = TrackerConfig {
+            min_gradient_gray_px: 1.0,
+            ..TrackerConfig::default()
+        };
+        let px = select_gradient_pixels(&pyr, &cfg);
+        // Depths varying over the image, so each point's Jacobian is its own.
+        let depth = Image::from_fn(cam.width, cam.height, |x, y| {
+            1.5 + (x + 2 * y) as f32 / 400.0
+        });
+        let pts = depth_points_from_map(&px, &depth, 0.05);
+        let kf = Keyframe::new(0, TimeNs(0), &pyr, &cam, Isometry3::identity(), &pts, &cfg);
+        let mut scaled = kf.clone();
+        scaled.scale_depths(0.9);
+        assert!((scaled.median_depth_m - 0.9 * kf.median_depth_m).abs() < 1e-9);
+        let mut changed = 0;
+        for (l, (a, b)) in scaled.levels.iter().zip(&kf.levels).enumerate() {
+            assert_eq!(a.len(), b.len());
+            assert!(a.len() > 10);
+            let (gx, gy) = pyr.gradients(l);
+            for k in 0..a.len().min(300) {
+                let p = Vector3::from(a.p_kf_m[k].map(|c| c as f64));
+                let q = Vector3::from(b.p_kf_m[k].map(|c| c as f64));
+                assert!((p - 0.9 * q).norm() < 1e-5);
+                // Eq. 26 evaluated afresh at the scaled point.
+                let (uv, jproj) = kf.cameras[l].project_with_jacobian(&p).unwrap();
+                let (u, v) = (uv.x as f32, uv.y as f32);
+                let g = Vector2::new(
+                    bilinear(gx, u, v).unwrap() as f64,
+                    bilinear(gy, u, v).unwrap() as f64,
+                );
+                let want = intensity_jacobian(&g, &jproj, &p);
+                for c in 0..6 {
+                    let tol = 1e-3 * want[c].abs().max(1.0);
+                    assert!(
+                        (a.jacobian[k][c] as f64 - want[c]).abs() < tol,
+                        "{l} {k} {c}"
+                    );
+                }
+                changed += usize::from(a.jacobian[k][3] != b.jacobian[k][3]);
+                assert_eq!(a.intensity[k], b.intensity[k]);
+            }
+        }
+        assert!(
+            changed > 100,
+            "the translation columns must change ({changed})"
+        );
     }
 
     #[test]

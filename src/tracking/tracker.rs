@@ -244,6 +244,14 @@ impl Tracker {
         }
     }
 
+    /// Multiplies the depths of the keyframe tracked against by `factor` about its camera (see
+    /// [`Keyframe::scale_depths`]).
+    pub fn scale_keyframe_depths(&mut self, factor: f64) {
+        if let Some(kf) = &mut self.keyframe {
+            kf.scale_depths(factor);
+        }
+    }
+
     /// Drops the keyframe (tracking loss): frames are IMU-only until a new one is set.
     pub fn clear_keyframe(&mut self) {
         self.keyframe = None;

@@ -489,6 +489,12 @@ pub struct OdometryStats {
     /// IMU's scale reaches the maps, since the mapper's world is chained through it
     /// (`mapper_from_world`).
     pub window_baseline_ratios: Vec<f64>,
+    /// With `[window] map_scale`: after each window solve, the estimated log-scale λ of every
+    /// keyframe map in the window, as (keyframe time, λ) (`OUT/window_scale.csv`).
+    pub window_map_log_scales: Vec<(TimeNs, f64)>,
+    /// With `[window] map_scale_gain`: each correction `c` of a keyframe map's log-scale (its
+    /// depths scaled by `e^{−c}` when the next keyframe was started).
+    pub window_map_scale_corrections: Vec<f64>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
@@ -1391,11 +1397,15 @@ impl Odometry {
             self.reset_window();
             return None;
         };
+        let tracked_newest = visual.is_some() && !across_return;
         let x_prev = *self.window.newest()?.1;
         let mut pre = Preintegration::new(x_prev.nav.t, x_prev.bias);
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
         let old = result.state;
         self.window.push(id, old, pre, visual);
+        if across_return {
+            self.window.set_newest_visual_on_own_map();
+        }
         let started = std::time::Instant::now();
         self.window.solve();
         let solve_s = started.elapsed().as_secs_f64();
@@ -1413,6 +1423,13 @@ impl Odometry {
         let correction = pose_of(&x_new) * pose_of(&old).inverse();
         // The previous newest keyframe as solved.
         let xk = self.window.state(newest).copied();
+        if self.cfg.window.map_scale {
+            for (kid, x) in self.window.states() {
+                if let Some(l) = self.window.log_scale(kid) {
+                    self.stats.window_map_log_scales.push((x.nav.t, l));
+                }
+            }
+        }
         if let Some(xk) = &xk {
             let before_m = (old.nav.p_world_m - x_prev.nav.p_world_m).norm();
             let after_m = (x_new.nav.p_world_m - xk.nav.p_world_m).norm();
@@ -1437,12 +1454,103 @@ impl Odometry {
             self.tracker.set_keyframe_pose(moved);
             self.seed_correction = Some(correction);
         }
+        if tracked_newest {
+            self.correct_map_scale(newest, &old);
+        }
         // Stored keyframes still in the window move with it.
         for (id, x) in self.window.states() {
             self.store.set_pose(id, pose_of(x) * self.rig.t_body_cam);
         }
         result.state = x_new;
         Some(correction)
+    }
+
+    /// `[window] map_scale_gain`: the map of keyframe `id` — the one tracked, the new keyframe's
+    /// predecessor — is scaled by the window's estimate of its scale before the new keyframe
+    /// (at state `current`, as tracked) is started from it: in the tracker, the map kept with it
+    /// and the mapper, and the frames kept for the new keyframe (tracked against the map before)
+    /// about the current camera. Not for a keyframe of guessed depths or a stored one.
+    fn correct_map_scale(&mut self, id: u32, current: &FrameState) {
+        let w = &self.cfg.window;
+        let applies = w.map_scale
+            && w.map_scale_gain > 0.0
+            && self.mapped_keyframe_tracked(id)
+            && self.guessed.is_none();
+        if !applies {
+            return;
+        }
+        let Some(lambda) = self.window.log_scale(id) else {
+            return;
+        };
+        let dead_zone = if w.map_scale_dead_zone_sigmas > 0.0 {
+            let Some(std) = self.window.log_scale_std(id) else {
+                return;
+            };
+            w.map_scale_dead_zone_sigmas * std
+        } else {
+            0.0
+        };
+        let beyond = lambda.signum() * (lambda.abs() - dead_zone).max(0.0);
+        let c = (w.map_scale_gain * beyond).clamp(-w.map_scale_max_step, w.map_scale_max_step);
+        if !c.is_finite() || c == 0.0 {
+            return;
+        }
+        let depth_factor = (-c).exp();
+        self.scale_tracked_map(id, depth_factor);
+        let centre = (pose_of(current) * self.rig.t_body_cam).translation.vector;
+        for h in self.history.iter_mut() {
+            let p = &mut h.t_world_cam.translation.vector;
+            *p = centre + (*p - centre) * depth_factor;
+        }
+        self.window.set_newest_map_correction(c);
+        self.stats.window_map_scale_corrections.push(c);
+    }
+
+    /// Multiplies the depths of keyframe `id`'s map, the one tracked against, by `depth_factor`
+    /// about its camera: the tracker's copy, the map kept with it (stored with it later) and the
+    /// mapper's (which propagates it into the next keyframe).
+    fn scale_tracked_map(&mut self, id: u32, depth_factor: f64) {
+        self.tracker.scale_keyframe_depths(depth_factor);
+        if let Some(m) = self.tracking_map.as_mut() {
+            let mut scaled = (**m).clone();
+            scaled.scale_inv_depths(1.0 / depth_factor);
+            *m = Arc::new(scaled);
+        }
+        let seq = self.next_seq();
+        self.send(MapJob::ScaleDepths {
+            seq,
+            id,
+            factor: 1.0 / depth_factor,
+        });
+    }
+
+    /// Fault injection for tests: the map tracked against gets its depths multiplied by
+    /// `depth_factor`, as if it had been triangulated at a wrong scale — which is how the map
+    /// chain's scale wanders (docs/odometry-log.md, *Where S-V101's error comes from*). Returns
+    /// whether there was a mapped keyframe to scale (none while lost, initialising, tracking a
+    /// stored keyframe or one of guessed depths).
+    pub fn inject_map_scale_error(&mut self, depth_factor: f64) -> bool {
+        let Some(id) = self.tracking_kf else {
+            return false;
+        };
+        if self.phase != Phase::Tracking
+            || !self.mapped_keyframe_tracked(id)
+            || self.pending_kf.is_some()
+            || !(depth_factor.is_finite() && depth_factor > 0.0)
+        {
+            return false;
+        }
+        self.scale_tracked_map(id, depth_factor);
+        true
+    }
+
+    /// Keyframe `id` is the one tracked against, with the mapper's map (not a stored keyframe,
+    /// nor one tracked with guessed depths).
+    fn mapped_keyframe_tracked(&self, id: u32) -> bool {
+        self.tracking_kf == Some(id)
+            && !self.reusing
+            && !self.tracking_kf_filled
+            && self.tracker.keyframe().is_some_and(|kf| kf.id == id)
     }
 
     /// The IMU says the vehicle rests: if the estimated speed is small enough to be drift, the

@@ -1,0 +1,122 @@
+//! The keyframe window's estimate of each keyframe map's scale (`[window] map_scale`), fed back
+//! into the map chain (`map_scale_gain`): a map that is suddenly too large — the way the chain's
+//! scale wanders on S-V101 — is read by the IMU over the window and the next keyframes' maps are
+//! brought back to metric; without the feedback the error stays in the chain.
+
+mod scratch;
+
+use std::path::PathBuf;
+use vidslam::dataset::AslDataset;
+use vidslam::runtime::map_depth::keyframe_depth_errors;
+use vidslam::runtime::odometry::{Odometry, OdometryConfig, Rig};
+use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
+use vidslam::time::TimeNs;
+
+/// The first 12 s of the built-in flight (2 s on the pad, the take-off and the first
+/// figure-eight), seed 11, with the simulator's noise.
+fn first_figure_eight() -> PathBuf {
+    let dir = scratch::dir("map-scale-feedback");
+    let mut cfg = SimConfig::new(
+        dir.clone(),
+        TrajectorySource::Builtin("demo".into()),
+        ImuSource::Synth,
+    );
+    cfg.seconds = Some(12.0);
+    cfg.seed = 11;
+    cfg.force = true;
+    generate(&cfg).unwrap();
+    dir
+}
+
+/// Replays `dir` offline with the map tracked at 6 s made `depth_factor` too large, and returns
+/// per keyframe started after the fault (time since it, s; median signed depth error, %).
+fn replay_with_fault(dir: &std::path::Path, gain: f64, depth_factor: f64) -> Vec<(f64, f64)> {
+    let ds = AslDataset::open(dir).unwrap();
+    let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
+    let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
+    let mut cfg = OdometryConfig::default();
+    cfg.window.map_scale = true;
+    cfg.window.map_scale_gain = gain;
+    let mut odo = Odometry::new(
+        cfg,
+        Rig {
+            camera: ds.camera.model,
+            t_body_cam: ds.camera.t_body_cam,
+            noise: ds.imu.noise,
+            vignette: ds.vignette,
+        },
+    );
+    let t_fault = frames[0].t.add_ns(6_000_000_000);
+    let mut injected: Option<TimeNs> = None;
+    let mut next = 0;
+    for f in &frames {
+        while next < imu.len() && imu[next].t <= f.t {
+            odo.push_imu(&imu[next]);
+            next += 1;
+        }
+        if next < imu.len() {
+            odo.push_imu(&imu[next]);
+            next += 1;
+        }
+        if injected.is_none() && f.t >= t_fault && odo.inject_map_scale_error(depth_factor) {
+            injected = Some(f.t);
+        }
+        let r = odo.push_frame(f.t, f.load().unwrap());
+        assert!(r.result.state.is_finite());
+    }
+    let injected = injected.expect("no mapped keyframe to scale after 6 s");
+    let (stats, mapping) = odo.finish();
+    assert_eq!(stats.resets, 0);
+    let errors =
+        keyframe_depth_errors(&ds, &mapping.keyframe_maps, &mapping.keyframe_times).unwrap();
+    errors
+        .iter()
+        .filter(|e| e.t > injected)
+        .map(|e| (e.t.secs_since(injected), e.signed_median_pct))
+        .collect()
+}
+
+/// Mean of the keyframes' median signed depth errors (%) started 1–2.5 s after the fault: long
+/// enough for the window to have seen the large map (it is read over several keyframes), short
+/// enough that the chain's own wander has not taken over.
+fn mean_error_after_fault_pct(e: &[(f64, f64)]) -> f64 {
+    let w: Vec<f64> = e
+        .iter()
+        .filter(|(t, _)| (1.0..=2.5).contains(t))
+        .map(|p| p.1)
+        .collect();
+    assert!(
+        w.len() >= 4,
+        "{} keyframes 1–2.5 s after the fault",
+        w.len()
+    );
+    w.iter().sum::<f64>() / w.len() as f64
+}
+
+#[test]
+fn a_map_made_too_large_is_brought_back_to_metric_by_the_windows_scale() {
+    let dir = first_figure_eight();
+    let print = |what: &str, e: &[(f64, f64)]| {
+        println!(
+            "{what}: {}",
+            e.iter()
+                .map(|(t, e)| format!("{t:.2} s {e:+.1} %"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
+    // A map 15 % too large at 6 s.
+    let without = replay_with_fault(&dir, 0.0, 1.15);
+    print("estimated, not fed back", &without);
+    let with = replay_with_fault(&dir, 0.5, 1.15);
+    print("fed back (gain 0.5)", &with);
+    let (e_without, e_with) = (
+        mean_error_after_fault_pct(&without),
+        mean_error_after_fault_pct(&with),
+    );
+    println!("mean signed depth error 1–2.5 s after: {e_without:+.1} % / {e_with:+.1} %");
+    // Without the feedback the chain keeps most of the fault; with it the maps are metric again.
+    assert!(e_without > 5.0, "{e_without}");
+    assert!(e_with.abs() < 3.0, "{e_with}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
