@@ -3,70 +3,45 @@
 //! scale wanders on S-V101 — is read by the IMU over the window and the next keyframes' maps are
 //! brought back to metric; without the feedback the error stays in the chain.
 
+mod drive;
 mod scratch;
 
 use std::path::PathBuf;
 use vidslam::dataset::AslDataset;
 use vidslam::runtime::map_depth::keyframe_depth_errors;
-use vidslam::runtime::odometry::{Odometry, OdometryConfig, Rig};
-use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
+use vidslam::runtime::odometry::OdometryConfig;
 use vidslam::time::TimeNs;
 
 /// The first 12 s of the built-in flight (2 s on the pad, the take-off and the first
 /// figure-eight), seed 11, with the simulator's noise.
 fn first_figure_eight() -> PathBuf {
-    let dir = scratch::dir("map-scale-feedback");
-    let mut cfg = SimConfig::new(
-        dir.clone(),
-        TrajectorySource::Builtin("demo".into()),
-        ImuSource::Synth,
-    );
-    cfg.seconds = Some(12.0);
-    cfg.seed = 11;
-    cfg.force = true;
-    generate(&cfg).unwrap();
-    dir
+    drive::render_builtin(scratch::dir("map-scale-feedback"), 12.0, 11)
 }
 
 /// Replays `dir` offline with the map tracked at 6 s made `depth_factor` too large, and returns
 /// per keyframe started after the fault (time since it, s; median signed depth error, %).
 fn replay_with_fault(dir: &std::path::Path, gain: f64, depth_factor: f64) -> Vec<(f64, f64)> {
-    let ds = AslDataset::open(dir).unwrap();
-    let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
-    let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
     let mut cfg = OdometryConfig::default();
     cfg.window.map_scale = true;
     cfg.window.map_scale_gain = gain;
-    let mut odo = Odometry::new(
-        cfg,
-        Rig {
-            camera: ds.camera.model,
-            t_body_cam: ds.camera.t_body_cam,
-            noise: ds.imu.noise,
-            vignette: ds.vignette,
-        },
-    );
-    let t_fault = frames[0].t.add_ns(6_000_000_000);
+    let mut t_fault: Option<TimeNs> = None;
     let mut injected: Option<TimeNs> = None;
-    let mut next = 0;
-    for f in &frames {
-        while next < imu.len() && imu[next].t <= f.t {
-            odo.push_imu(&imu[next]);
-            next += 1;
-        }
-        if next < imu.len() {
-            odo.push_imu(&imu[next]);
-            next += 1;
-        }
-        if injected.is_none() && f.t >= t_fault && odo.inject_map_scale_error(depth_factor) {
-            injected = Some(f.t);
-        }
-        let r = odo.push_frame(f.t, f.load().unwrap());
-        assert!(r.result.state.is_finite());
-    }
+    let odo = drive::feed(
+        dir,
+        cfg,
+        |odo, _, t| {
+            let t_fault = *t_fault.get_or_insert(t.add_ns(6_000_000_000));
+            if injected.is_none() && t >= t_fault && odo.inject_map_scale_error(depth_factor) {
+                injected = Some(t);
+            }
+            None
+        },
+        |_, r| assert!(r.result.state.is_finite()),
+    );
     let injected = injected.expect("no mapped keyframe to scale after 6 s");
     let (stats, mapping) = odo.finish();
     assert_eq!(stats.resets, 0);
+    let ds = AslDataset::open(dir).unwrap();
     let errors =
         keyframe_depth_errors(&ds, &mapping.keyframe_maps, &mapping.keyframe_times).unwrap();
     errors

@@ -2,13 +2,14 @@
 //! IMU, tracking on semidense maps from the mapping thread, loss (black frames) and recovery with
 //! a counted reset, determinism of two offline replays, and the real EuRoC clip on the pad.
 
+mod drive;
 mod scratch;
 
 use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
-use vidslam::runtime::odometry::{Odometry, OdometryConfig, Phase, Rig, TakeoffRefinement};
+use vidslam::runtime::odometry::{OdometryConfig, Phase, TakeoffRefinement};
 use vidslam::runtime::{ReplayOptions, replay, trajectory};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::tracking::pose_of;
@@ -16,20 +17,8 @@ use vidslam::tracking::pose_of;
 /// The first 5 s of the built-in flight: 2 s on the pad with the rotors running, then take-off.
 fn takeoff() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
-    ONCE.get_or_init(|| {
-        let dir = scratch::dir("odometry-takeoff");
-        let mut cfg = SimConfig::new(
-            dir.clone(),
-            TrajectorySource::Builtin("demo".into()),
-            ImuSource::Synth,
-        );
-        cfg.seconds = Some(5.0);
-        cfg.seed = 11;
-        cfg.force = true;
-        generate(&cfg).unwrap();
-        dir
-    })
-    .clone()
+    ONCE.get_or_init(|| drive::render_builtin(scratch::dir("odometry-takeoff"), 5.0, 11))
+        .clone()
 }
 
 /// Prints the ATE of `out` (`what` happened in it) beside the clear run's `clear` and checks it
@@ -270,44 +259,23 @@ fn refinements_applied_frames_late_keep_replays_identical() {
 fn black_frames_lose_tracking_and_it_recovers_with_a_reset() {
     let dir = takeoff();
     let ds = AslDataset::open(&dir).unwrap();
-    let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
-    let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
-    let mut odo = Odometry::new(
+    let black = |k: usize| (70..75).contains(&k); // 0.25 s of covered lens while flying
+    let mut seen = Vec::new();
+    let odo = drive::feed(
+        &dir,
         OdometryConfig::default(),
-        Rig {
-            camera: ds.camera.model,
-            t_body_cam: ds.camera.t_body_cam,
-            noise: ds.imu.noise,
-            vignette: ds.vignette,
+        |_, k, _| black(k).then(|| Image::<u8>::new(ds.camera.model.width, ds.camera.model.height)),
+        |_, r| {
+            assert!(
+                pose_of(&r.result.state)
+                    .translation
+                    .vector
+                    .iter()
+                    .all(|v| v.is_finite())
+            );
+            seen.push((r.phase, r.resets));
         },
     );
-    let black = |k: usize| (70..75).contains(&k); // 0.25 s of covered lens while flying
-    let mut next = 0;
-    let mut seen = Vec::new();
-    for (k, f) in frames.iter().enumerate() {
-        while next < imu.len() && imu[next].t <= f.t {
-            odo.push_imu(&imu[next]);
-            next += 1;
-        }
-        if next < imu.len() {
-            odo.push_imu(&imu[next]);
-            next += 1;
-        }
-        let img = if black(k) {
-            Image::<u8>::new(ds.camera.model.width, ds.camera.model.height)
-        } else {
-            f.load().unwrap()
-        };
-        let r = odo.push_frame(f.t, img);
-        assert!(
-            pose_of(&r.result.state)
-                .translation
-                .vector
-                .iter()
-                .all(|v| v.is_finite())
-        );
-        seen.push((r.phase, r.resets));
-    }
     let before: Vec<_> = seen[..70].iter().map(|s| s.0).collect();
     assert!(before.contains(&Phase::Tracking), "{before:?}");
     assert!(seen[70..80].iter().any(|s| s.0 == Phase::Lost), "{seen:?}");

@@ -375,9 +375,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn levels_are_thinned_capped_and_consistent() {
-        let cam = CameraModel::euroc_cam0();
+    /// The smooth image's pyramid, a tracker configuration that selects most of its pixels, and
+    /// those pixels.
+    fn smooth_gradient_pixels(cam: &CameraModel) -> (Pyramid, TrackerConfig, Vec<(u32, u32)>) {
         let img = smooth(cam.width, cam.height);
         let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
         pyr.fill_from_f32(&img);
@@ -386,6 +386,13 @@ mod tests {
             ..TrackerConfig::default()
         };
         let px = select_gradient_pixels(&pyr, &cfg);
+        (pyr, cfg, px)
+    }
+
+    #[test]
+    fn levels_are_thinned_capped_and_consistent() {
+        let cam = CameraModel::euroc_cam0();
+        let (pyr, cfg, px) = smooth_gradient_pixels(&cam);
         assert!(px.len() > 5000, "{}", px.len());
         let depth = Image::from_fn(cam.width, cam.height, |_, _| 2.0f32);
         let pts = depth_points_from_map(&px, &depth, 0.05);
@@ -407,14 +414,7 @@ mod tests {
     #[test]
     fn a_keyframe_with_scaled_depths_has_the_jacobians_of_the_scaled_points() {
         let cam = CameraModel::euroc_cam0();
-        let img = smooth(cam.width, cam.height);
-        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
-        pyr.fill_from_f32(&img);
-        let cfg = TrackerConfig {
-            min_gradient_gray_px: 1.0,
-            ..TrackerConfig::default()
-        };
-        let px = select_gradient_pixels(&pyr, &cfg);
+        let (pyr, cfg, px) = smooth_gradient_pixels(&cam);
         // Depths varying over the image, so each point's Jacobian is its own.
         let depth = Image::from_fn(cam.width, cam.height, |x, y| {
             1.5 + (x + 2 * y) as f32 / 400.0
