@@ -12,7 +12,13 @@
 //! odometry moves the keyframes and the tracker's state onto the window's solution after every
 //! new keyframe.
 //!
-//! State increment per keyframe in the order of eq. 11, `[δθ, δt, δv, δbω, δba]`.
+//! With `map_scale` each keyframe's map also has a log-scale λ among the unknowns: the relative
+//! poses tracked against a map are measured at its scale `e^λ`, and λ walks from keyframe to
+//! keyframe, so the IMU reads the maps' scale over the whole window and the odometry corrects the
+//! map tracked by it (`map_scale_gain`).
+//!
+//! State increment per keyframe in the order of eq. 11, `[δθ, δt, δv, δbω, δba]`, then λ with
+//! `map_scale`.
 
 use super::relative_pose::RelativePose;
 use crate::geometry::log_so3;
