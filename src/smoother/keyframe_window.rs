@@ -27,6 +27,7 @@ use crate::imu::{
     FrameState, ImuNoise, Matrix15, Preintegration, Vector15, imu_residual,
     imu_residual_covariance, residual::imu_jacobian_i,
 };
+use crate::time::TimeNs;
 use nalgebra::{DMatrix, DVector, Isometry3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
@@ -76,10 +77,6 @@ pub struct WindowConfig {
     pub map_scale_gain: f64,
     /// At most this much of λ is corrected per keyframe.
     pub map_scale_max_step: f64,
-    /// Only the part of λ beyond this many of its standard deviations (the window's marginal
-    /// σ of λ) is corrected: `c = gain · sign(λ) · max(0, |λ| − k σ)`, so a map the window cannot
-    /// tell from metric is left alone.
-    pub map_scale_dead_zone_sigmas: f64,
 }
 
 impl Default for WindowConfig {
@@ -97,7 +94,6 @@ impl Default for WindowConfig {
             map_scale_initial_std: 0.05,
             map_scale_gain: 0.5,
             map_scale_max_step: 0.05,
-            map_scale_dead_zone_sigmas: 0.0,
         }
     }
 }
@@ -239,32 +235,17 @@ impl KeyframeWindow {
         self.nodes.iter().find(|n| n.id == id).map(|n| n.log_scale)
     }
 
+    /// Time and map log-scale λ of the keyframes in the window, oldest first.
+    pub fn log_scales(&self) -> impl Iterator<Item = (TimeNs, f64)> + '_ {
+        self.nodes.iter().map(|n| (n.state.nav.t, n.log_scale))
+    }
+
     /// The newest keyframe's relative pose was tracked against a stored keyframe's map, which
     /// seeds the newest's map (a return to a stored keyframe): see `Node::visual_on_own_map`.
     pub fn set_newest_visual_on_own_map(&mut self) {
         if let Some(n) = self.nodes.back_mut() {
             n.visual_on_own_map = true;
         }
-    }
-
-    /// The standard deviation of keyframe `id`'s λ in the window (the marginal of the window's
-    /// information at the current solution), if it is in the window and `map_scale` is on.
-    pub fn log_scale_std(&self, id: u32) -> Option<f64> {
-        if self.block() != 16 {
-            return None;
-        }
-        let k = self.nodes.iter().position(|n| n.id == id)?;
-        let (mut h, _, _) = self.linearise(&self.unknowns());
-        for d in 0..h.nrows() {
-            h[(d, d)] += 1e-12;
-        }
-        let n = h.nrows();
-        let chol = h.cholesky()?;
-        let mut e = DVector::zeros(n);
-        let i = self.block() * k + 15;
-        e[i] = 1.0;
-        let var = chol.solve(&e)[i];
-        (var.is_finite() && var > 0.0).then(|| var.sqrt())
     }
 
     /// The map of the newest keyframe's predecessor was scaled by `e^{−c}` when the newest was

@@ -1424,11 +1424,9 @@ impl Odometry {
         // The previous newest keyframe as solved.
         let xk = self.window.state(newest).copied();
         if self.cfg.window.map_scale {
-            for (kid, x) in self.window.states() {
-                if let Some(l) = self.window.log_scale(kid) {
-                    self.stats.window_map_log_scales.push((x.nav.t, l));
-                }
-            }
+            self.stats
+                .window_map_log_scales
+                .extend(self.window.log_scales());
         }
         if let Some(xk) = &xk {
             let before_m = (old.nav.p_world_m - x_prev.nav.p_world_m).norm();
@@ -1482,16 +1480,7 @@ impl Odometry {
         let Some(lambda) = self.window.log_scale(id) else {
             return;
         };
-        let dead_zone = if w.map_scale_dead_zone_sigmas > 0.0 {
-            let Some(std) = self.window.log_scale_std(id) else {
-                return;
-            };
-            w.map_scale_dead_zone_sigmas * std
-        } else {
-            0.0
-        };
-        let beyond = lambda.signum() * (lambda.abs() - dead_zone).max(0.0);
-        let c = (w.map_scale_gain * beyond).clamp(-w.map_scale_max_step, w.map_scale_max_step);
+        let c = (w.map_scale_gain * lambda).clamp(-w.map_scale_max_step, w.map_scale_max_step);
         if !c.is_finite() || c == 0.0 {
             return;
         }
