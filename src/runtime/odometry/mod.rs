@@ -1486,11 +1486,10 @@ impl Odometry {
         }
         let depth_factor = (-c).exp();
         self.scale_tracked_map(id, depth_factor);
-        let centre = (pose_of(current) * self.rig.t_body_cam).translation.vector;
-        for h in self.history.iter_mut() {
-            let p = &mut h.t_world_cam.translation.vector;
-            *p = centre + (*p - centre) * depth_factor;
-        }
+        self.rescale_history(
+            (pose_of(current) * self.rig.t_body_cam).translation.vector,
+            depth_factor,
+        );
         self.window.set_newest_map_correction(c);
         self.stats.window_map_scale_corrections.push(c);
     }
@@ -1505,12 +1504,27 @@ impl Odometry {
             scaled.scale_inv_depths(1.0 / depth_factor);
             *m = Arc::new(scaled);
         }
+        self.send_scale_depths(id, 1.0 / depth_factor);
+    }
+
+    /// The mapper's copy of keyframe `id` gets its inverse depths multiplied by
+    /// `inv_depth_factor` (and so does the next keyframe it propagates from it).
+    fn send_scale_depths(&mut self, id: u32, inv_depth_factor: f64) {
         let seq = self.next_seq();
         self.send(MapJob::ScaleDepths {
             seq,
             id,
-            factor: 1.0 / depth_factor,
+            factor: inv_depth_factor,
         });
+    }
+
+    /// The frames kept for the next keyframe were tracked against a map now scaled by
+    /// `depth_factor` about the camera centre `centre_m`: their positions follow.
+    fn rescale_history(&mut self, centre_m: Vector3<f64>, depth_factor: f64) {
+        for h in self.history.iter_mut() {
+            let p = &mut h.t_world_cam.translation.vector;
+            *p = centre_m + (*p - centre_m) * depth_factor;
+        }
     }
 
     /// Fault injection for tests: the map tracked against gets its depths multiplied by

@@ -303,13 +303,8 @@ impl Odometry {
             // camera with the adjustment's median change (the tracker continues from the last
             // view's adjusted state below).
             let factor = a.median_inv_depth_ratio;
-            let seq = self.next_seq();
-            self.send(MapJob::ScaleDepths { seq, id, factor });
-            let centre = unadjusted.t_world_cam.translation.vector;
-            for h in self.history.iter_mut() {
-                let p = &mut h.t_world_cam.translation.vector;
-                *p = centre + (*p - centre) / factor;
-            }
+            self.send_scale_depths(id, factor);
+            self.rescale_history(unadjusted.t_world_cam.translation.vector, 1.0 / factor);
             let mut map = (*snapshot.map).clone();
             map.scale_inv_depths(factor);
             let snapshot = MapSnapshot {
