@@ -386,6 +386,67 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
     assert!(c.ate_rmse_m < 1.5 * a.ate_rmse_m + 0.01, "{}", c.ate_rmse_m);
 }
 
+/// A relocalisation found while the lens is still coming free (the frame far darker than the
+/// keyframe: its brightness collapsed) keeps the stored keyframe a candidate — the image is at
+/// fault, not the map — so the next frames relocalise on it again instead of marking it, and
+/// the keyframes behind it, failed and building a first map in flight
+/// (docs/odometry-log.md, *a brightness collapse does not rule a keyframe out*).
+#[test]
+fn a_relocalisation_while_the_lens_comes_free_keeps_its_keyframe() {
+    // 12 s of the built-in flight: the cover at 6 s finds a window of keyframes to relocalise on.
+    let dir = drive::render_builtin(scratch::dir("odometry-uncovering"), 12.0, 11);
+    let clear = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    let (cover_s, covered_s, uncover_s) = (6.0, 0.3, 0.6);
+    let mut opts = ReplayOptions {
+        covered_lens_s: vec![(cover_s, covered_s)],
+        uncover_s,
+        ..Default::default()
+    };
+    opts.bootstrap.resume_max_s = 0.0; // relocalise, do not resume
+    let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let ds = AslDataset::open(&dir).unwrap();
+    let t0 = ds.frames().unwrap().next().unwrap().unwrap().t;
+    let since_s = |r: &vidslam::tracking::TrackResult| r.t.secs_since(t0);
+    // The scenario: a frame relocalised while coming free had its brightness collapse.
+    let collapse = -opts.tracker.collapsed_log_gain;
+    let collapsed: Vec<f64> = out
+        .frames
+        .iter()
+        .filter(|r| {
+            let s = since_s(r);
+            s >= cover_s + covered_s && s < cover_s + covered_s + uncover_s && r.log_gain < collapse
+        })
+        .map(|r| r.log_gain)
+        .collect();
+    assert!(
+        !collapsed.is_empty(),
+        "no brightness collapse while uncovering"
+    );
+    // The rule: relocalised on a stored keyframe, never a first map started again.
+    let restarted: Vec<f64> = out
+        .frames
+        .iter()
+        .zip(&out.phases)
+        .filter(|(r, p)| since_s(r) > cover_s && **p == Phase::Initializing)
+        .map(|(r, _)| since_s(r))
+        .collect();
+    assert!(
+        restarted.is_empty(),
+        "a first map started again in flight at {restarted:?} s (gains {collapsed:?})"
+    );
+    assert!(out.odometry.relocalisations >= 1);
+    assert_eq!(out.recoveries().unrecovered_s, None);
+    assert_eq!(out.phases.last(), Some(&Phase::Tracking));
+    let a = eval_against_truth(&dir, &clear);
+    ate_near_clear(
+        &dir,
+        &a,
+        &out,
+        "the lens coming free over 0.6 s",
+        (1.5, 0.01),
+    );
+}
+
 #[test]
 fn a_first_map_that_does_not_start_in_flight_is_started_again_with_guessed_depths() {
     // A loss in flight that neither resumes nor relocalises, and a first map from the dead

@@ -234,6 +234,7 @@ fn run_one(
         max_seconds: None,
         no_vision: false,
         cover_lens: Vec::new(),
+        uncover_s: 0.0,
         quiet: a.quiet,
     };
     let started = std::time::Instant::now();

@@ -52,6 +52,10 @@ pub struct ReplayArgs {
     /// replaced by black images), to test loss and recovery; repeatable.
     #[arg(long, value_name = "START_S:DURATION_S", value_parser = parse_covered_lens)]
     pub cover_lens: Vec<(f64, f64)>,
+    /// After each --cover-lens interval the lens comes free over this long, s: grey levels rise
+    /// linearly from black to full (a cap being lifted, the exposure settling).
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.0, value_parser = parse_uncover_s)]
+    pub uncover_s: f64,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -62,14 +66,21 @@ fn parse_covered_lens(s: &str) -> Result<(f64, f64), String> {
     let (a, d) = s
         .split_once(':')
         .ok_or_else(|| format!("expected START_S:DURATION_S, got {s:?}"))?;
-    let num = |v: &str, what: &str| {
-        v.trim()
-            .parse::<f64>()
-            .ok()
-            .filter(|x| x.is_finite() && *x >= 0.0)
-            .ok_or_else(|| format!("{what} must be a non-negative number of seconds, got {v:?}"))
-    };
-    Ok((num(a, "START_S")?, num(d, "DURATION_S")?))
+    Ok((seconds(a, "START_S")?, seconds(d, "DURATION_S")?))
+}
+
+/// `--uncover-s`: a non-negative number of seconds.
+fn parse_uncover_s(s: &str) -> Result<f64, String> {
+    seconds(s, "--uncover-s")
+}
+
+/// `v` as a non-negative, finite number of seconds; the error names `what`.
+fn seconds(v: &str, what: &str) -> Result<f64, String> {
+    v.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|x| x.is_finite() && *x >= 0.0)
+        .ok_or_else(|| format!("{what} must be a non-negative number of seconds, got {v:?}"))
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -118,6 +129,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         realtime: a.realtime,
         max_seconds: a.max_seconds,
         covered_lens_s: a.cover_lens.clone(),
+        uncover_s: a.uncover_s,
         ..Default::default()
     };
     if a.no_vision {
@@ -210,7 +222,7 @@ fn depth_name(d: DepthArg) -> &'static str {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_covered_lens;
+    use super::{parse_covered_lens, parse_uncover_s};
 
     #[test]
     fn cover_lens_takes_start_and_duration_and_names_what_is_wrong() {
@@ -232,5 +244,7 @@ mod tests {
                 .unwrap_err()
                 .contains("DURATION_S")
         );
+        assert_eq!(parse_uncover_s("0.25"), Ok(0.25));
+        assert!(parse_uncover_s("-0.1").unwrap_err().contains("--uncover-s"));
     }
 }

@@ -62,6 +62,10 @@ pub struct ReplayOptions {
     /// Covered-lens intervals `(start_s, duration_s)` after the first replayed frame: their
     /// frames are replaced by black images (a tracking loss on demand). Full odometry only.
     pub covered_lens_s: Vec<(f64, f64)>,
+    /// After each covered interval the lens comes free over this long, s: the frames' grey
+    /// levels are scaled from 0 up to full linearly in time (a cap being lifted, an exposure
+    /// settling). 0 = uncovered at once.
+    pub uncover_s: f64,
     /// Initial standard deviations: position m, rotation rad, velocity m/s, gyro bias rad/s,
     /// accel bias m/s².
     pub initial_std: InitialStd,
@@ -119,6 +123,7 @@ impl Default for ReplayOptions {
             realtime: false,
             max_seconds: None,
             covered_lens_s: Vec::new(),
+            uncover_s: 0.0,
             initial_std: InitialStd::default(),
         }
     }
@@ -307,7 +312,13 @@ fn replay_full(
             let c = &ds.camera.model;
             crate::image::Image::<u8>::new(c.width, c.height)
         } else {
-            rec.load()?
+            let mut img = rec.load()?;
+            if let Some(gain) = uncovering_gain(&opts.covered_lens_s, opts.uncover_s, since_s) {
+                img.data_mut()
+                    .iter_mut()
+                    .for_each(|v| *v = (f64::from(*v) * gain).round() as u8);
+            }
+            img
         };
         if opts.realtime {
             let due = std::time::Duration::from_secs_f64(since_s.max(0.0));
@@ -464,4 +475,33 @@ fn ground_truth_keyframe(
         &points,
         &cfg,
     ))
+}
+
+/// `uncover_s`: the grey-level gain of a frame `since_s` after the first one while the lens comes
+/// free after one of the `covered` intervals `(start_s, duration_s)`, in (0, 1); `None` when it
+/// is not coming free.
+fn uncovering_gain(covered: &[(f64, f64)], uncover_s: f64, since_s: f64) -> Option<f64> {
+    if uncover_s.is_nan() || uncover_s <= 0.0 {
+        return None;
+    }
+    covered.iter().find_map(|&(a, d)| {
+        let into_s = since_s - (a + d);
+        (into_s >= 0.0 && into_s < uncover_s).then(|| (into_s / uncover_s).max(1e-3))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::uncovering_gain;
+
+    #[test]
+    fn the_lens_comes_free_linearly_after_each_cover() {
+        let covers = [(1.0, 0.5), (4.0, 1.0)];
+        assert_eq!(uncovering_gain(&covers, 0.0, 1.6), None);
+        assert_eq!(uncovering_gain(&covers, 0.2, 1.4), None); // still covered
+        assert!((uncovering_gain(&covers, 0.2, 1.55).unwrap() - 0.25).abs() < 1e-9);
+        assert!((uncovering_gain(&covers, 0.2, 5.15).unwrap() - 0.75).abs() < 1e-9);
+        assert_eq!(uncovering_gain(&covers, 0.2, 1.75), None); // free again
+        assert_eq!(uncovering_gain(&covers, 0.2, 0.5), None);
+    }
 }
