@@ -82,6 +82,15 @@ pub struct KeyframeBundleConfig {
     /// Prior standard deviation of the previous keyframe's velocity around the window's
     /// estimate in that adjustment, m/s: the chain is long enough for the frames to tell it.
     pub previous_host_velocity_std_m_s: f64,
+    /// In real time a new keyframe waits for this many frames tracked since it was started
+    /// before it is adjusted and installed (at least `min_views`; unless the keyframe tracked
+    /// meanwhile is nearly lost, `[bootstrap] urgent_unadjusted_inlier_ratio`). Offline the
+    /// mapper's `[bootstrap] min_keyframe_forward_views` (3) come with 4 such frames; in real
+    /// time, with 3, S-V101's adjustments spanned 0.15 s instead of 0.20 s, moved the
+    /// accelerometer bias twice as far (p50 0.18 against 0.11 m/s², 87 jumps beyond 0.25 m/s² on
+    /// seed 1 against 16 offline) and 3 of 16 runs ran away (docs/odometry-log.md, *Real-time
+    /// keyframe adjustments wait for the views offline ones get*).
+    pub realtime_min_views: usize,
 }
 
 impl Default for KeyframeBundleConfig {
@@ -103,6 +112,7 @@ impl Default for KeyframeBundleConfig {
             previous_host: false,
             previous_host_max_frames: 6,
             previous_host_velocity_std_m_s: 0.1,
+            realtime_min_views: 4,
         }
     }
 }

@@ -210,12 +210,13 @@ impl Odometry {
     }
 
     /// Where new keyframe `id` stands with its adjustment (`[keyframe_bundle]`): the frames
-    /// tracked since it was started are recorded for it, and are they enough.
+    /// tracked since it was started are recorded for it, and are they enough (`min_views`; in
+    /// real time `realtime_min_views`).
     fn adjustment_views(&self, id: u32) -> AdjustmentViews {
         let kb = &self.cfg.keyframe_bundle;
         match self.kf_record.as_ref().filter(|r| r.id == id) {
             Some(r) if kb.enabled && self.refiner.is_some() => {
-                if r.views.len() >= kb.min_views.max(1) {
+                if r.views.len() >= adjustment_views_needed(kb, self.cfg.realtime) {
                     AdjustmentViews::Enough
                 } else {
                     AdjustmentViews::Awaited
@@ -573,9 +574,21 @@ pub(super) enum AdjustmentViews {
     Enough,
 }
 
+/// Frames tracked since a new keyframe was started that its adjustment needs: `min_views`, in
+/// real time `realtime_min_views` if more (at least 1).
+fn adjustment_views_needed(kb: &KeyframeBundleConfig, realtime: bool) -> usize {
+    let n = if realtime {
+        kb.min_views.max(kb.realtime_min_views)
+    } else {
+        kb.min_views
+    };
+    n.max(1)
+}
+
 /// Whether a new keyframe's map may be installed (or handed to its adjustment): it has forward
-/// parallax (`min_keyframe_forward_views` views after it in the mapper; in real time also the
-/// frames tracked since it, once its adjustment can use them), or the keyframe tracked meanwhile is
+/// parallax (`min_keyframe_forward_views` views after it in the mapper; in real time the frames
+/// tracked since it instead, once its adjustment can use them — not before, however many views
+/// the mapper has), or the keyframe tracked meanwhile is
 /// slipping away (`urgent_inlier_ratio`; when adjustments come back `late` — in real time, or
 /// offline with `[keyframe_bundle] lag_frames` — and its adjustment still awaits its frames, so
 /// that installed now it would be installed unadjusted: only below
@@ -591,7 +604,8 @@ fn new_keyframe_ready(
     let slipping = inlier_ratio < b.urgent_inlier_ratio
         && (!awaits_adjustment || inlier_ratio < b.urgent_unadjusted_inlier_ratio);
     slipping
-        || forward_views >= b.min_keyframe_forward_views
+        || (forward_views >= b.min_keyframe_forward_views
+            && !(realtime && views == AdjustmentViews::Awaited))
         || (realtime && views == AdjustmentViews::Enough)
 }
 
@@ -720,7 +734,7 @@ mod tests {
         ));
         // Real time: the tracked frames its adjustment will use stand in for them…
         assert!(new_keyframe_ready(&b, realtime, tracked_well, 0, Enough));
-        // …but not before there are enough of them.
+        // …but not before there are enough of them, even with the mapper's forward views.
         assert!(!new_keyframe_ready(
             &b,
             realtime,
@@ -728,11 +742,37 @@ mod tests {
             few,
             Awaited
         ));
+        assert!(!new_keyframe_ready(
+            &b,
+            realtime,
+            tracked_well,
+            enough,
+            Awaited
+        ));
+        // (A keyframe not to be adjusted takes the mapper's forward views, as offline.)
+        assert!(new_keyframe_ready(
+            &b,
+            realtime,
+            tracked_well,
+            enough,
+            NotAdjusted
+        ));
         // Either way, a keyframe slipping away does not wait if it is not to be adjusted.
         let slipping = b.urgent_inlier_ratio - 0.05;
         for mode in [offline, realtime] {
             assert!(new_keyframe_ready(&b, mode, slipping, 0, NotAdjusted));
         }
+    }
+
+    #[test]
+    fn real_time_adjustments_wait_for_the_views_offline_ones_get() {
+        let mut kb = KeyframeBundleConfig::default();
+        assert_eq!(adjustment_views_needed(&kb, false), kb.min_views);
+        assert_eq!(adjustment_views_needed(&kb, true), 4);
+        kb.realtime_min_views = 0; // never fewer than offline
+        assert_eq!(adjustment_views_needed(&kb, true), kb.min_views);
+        kb.min_views = 0;
+        assert_eq!(adjustment_views_needed(&kb, false), 1);
     }
 
     #[test]

@@ -99,9 +99,10 @@ pub struct BootstrapConfig {
     pub min_keyframe_points: usize,
     /// …and it has been observed by this many frames after it (tracked against the previous
     /// keyframe), so that it is triangulated with forward parallax before anything is tracked
-    /// against it. In real time, where the mapper is behind, the frames tracked since it was
-    /// started stand in for them once there are enough for its adjustment
-    /// (`[keyframe_bundle] min_views`): the adjustment triangulates it over those frames.
+    /// against it. In real time the frames tracked since it was started decide instead, once
+    /// there are enough for its adjustment (`[keyframe_bundle] realtime_min_views`): the
+    /// adjustment triangulates it over those frames, and it waits for them even when the mapper
+    /// has its forward views.
     pub min_keyframe_forward_views: usize,
     /// …unless fewer than this fraction of the current keyframe's points are still inliers…
     pub urgent_inlier_ratio: f64,
