@@ -84,6 +84,12 @@ impl Config {
     /// inverse depth rigid (infinite information): the photometric bundle adjustment then takes
     /// no step at all and silently leaves the keyframe or the take-off as it was.
     fn check_ranges(&self, text: &str) -> Result<(), String> {
+        // "line N: " where the key is set, if it is.
+        let at = |table: &str, key: &str| {
+            key_line(text, table, key)
+                .map(|l| format!("line {l}: "))
+                .unwrap_or_default()
+        };
         let positive = [
             (
                 "keyframe_bundle",
@@ -108,12 +114,10 @@ impl Config {
         ];
         for (table, key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                let at = key_line(text, table, key)
-                    .map(|l| format!("line {l}: "))
-                    .unwrap_or_default();
                 return Err(format!(
-                    "{at}[{table}] {key} = {v}: must be > 0 (a standard deviation; 0 would \
-                     hold what it weights rigid)"
+                    "{}[{table}] {key} = {v}: must be > 0 (a standard deviation; 0 would \
+                     hold what it weights rigid)",
+                    at(table, key)
                 ));
             }
         }
@@ -123,11 +127,9 @@ impl Config {
             ("map_scale_max_step", w.map_scale_max_step, 0.5),
         ] {
             if !(v.is_finite() && (0.0..=max).contains(&v)) {
-                let at = key_line(text, "window", key)
-                    .map(|l| format!("line {l}: "))
-                    .unwrap_or_default();
                 return Err(format!(
-                    "{at}[window] {key} = {v}: must be within 0 … {max}"
+                    "{}[window] {key} = {v}: must be within 0 … {max}",
+                    at("window", key)
                 ));
             }
         }

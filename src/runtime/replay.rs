@@ -294,15 +294,7 @@ fn replay_full(
     let mut next_imu = 0usize;
     let wall0 = std::time::Instant::now();
     for (k, rec) in span.iter().enumerate() {
-        while next_imu < imu.len() && imu[next_imu].t <= rec.t {
-            odo.push_imu(&imu[next_imu]);
-            next_imu += 1;
-        }
-        // One sample past the frame, so the interval end is interpolated, not extrapolated.
-        if next_imu < imu.len() {
-            odo.push_imu(&imu[next_imu]);
-            next_imu += 1;
-        }
+        odo.push_imu_for_frame(&imu, &mut next_imu, rec.t);
         let since_s = rec.t.secs_since(t0);
         let covered = opts
             .covered_lens_s

@@ -50,14 +50,7 @@ pub fn feed(
     );
     let mut next = 0;
     for (k, f) in frames.iter().enumerate() {
-        while next < imu.len() && imu[next].t <= f.t {
-            odo.push_imu(&imu[next]);
-            next += 1;
-        }
-        if next < imu.len() {
-            odo.push_imu(&imu[next]);
-            next += 1;
-        }
+        odo.push_imu_for_frame(&imu, &mut next, f.t);
         let img = match before(&mut odo, k, f.t) {
             Some(img) => img,
             None => f.load().unwrap(),

@@ -812,6 +812,20 @@ impl Odometry {
         }
     }
 
+    /// Feeds the samples of `imu` (time ordered) from index `*next` up to frame time `t` and one
+    /// past it — so the frame's interval end is interpolated, not extrapolated — and advances
+    /// `*next` past them: what a recording's frame needs before [`Odometry::push_frame`].
+    pub fn push_imu_for_frame(&mut self, imu: &[ImuSample], next: &mut usize, t: TimeNs) {
+        while let Some(s) = imu.get(*next).filter(|s| s.t <= t) {
+            self.push_imu(s);
+            *next += 1;
+        }
+        if let Some(s) = imu.get(*next) {
+            self.push_imu(s);
+            *next += 1;
+        }
+    }
+
     /// Feeds one IMU sample (time ordered).
     pub fn push_imu(&mut self, s: &ImuSample) {
         if let Some(StaticEvent::MotionOnset(o)) = self.detector.push(s)
