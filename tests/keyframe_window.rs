@@ -341,3 +341,85 @@ fn the_imu_reads_the_scale_of_maps_that_grow_when_the_window_estimates_it() {
         "{p_off} m without the scale, {p_on} m with it"
     );
 }
+
+/// 12 keyframes on metric maps, then a loss of `gap_s` and a first map started again whose
+/// tracked translations are 1.3× the truth. The first keyframe of the new map is the tracker's
+/// dead-reckoned state (velocity 0.1 m/s off); with `keep` it joins the window by the IMU through
+/// the loss ([`KeyframeWindow::push_new_map`]), without it the window restarts there from that
+/// state and a dead-reckoning covariance. Returns the worst |λ − ln 1.3| of the new map and the
+/// worst position error of the newest keyframe over the new map's last 6 keyframes.
+fn run_rebuilt_map(keep: bool, gap_s: f64) -> (f64, f64) {
+    let sp = flight();
+    let mut w = window(WindowConfig::default().max_keyframes);
+    let t0 = sp.start().add_ns(10_000_000_000);
+    let x0 = truth(&sp, t0);
+    w.reset(0, x0, &prior_cov());
+    let mut prev_true = x0;
+    for k in 1..=12u32 {
+        let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
+        let xt = truth(&sp, t);
+        let pre = preintegrate(&sp, w.newest().unwrap().1, t);
+        w.push(k, xt, pre, Some(relative(&prev_true, &xt)));
+        w.solve();
+        prev_true = xt;
+    }
+    // The loss: the new map's first keyframe, dead-reckoned.
+    let t_new = prev_true.nav.t.add_ns((gap_s * 1e9) as i64);
+    let x_true_new = truth(&sp, t_new);
+    let mut x_dr = x_true_new;
+    x_dr.nav.v_world_m_s += Vector3::new(0.1, 0.0, 0.0);
+    if keep {
+        let pre = preintegrate(&sp, w.newest().unwrap().1, t_new);
+        w.push_new_map(13, x_dr, pre);
+    } else {
+        let mut cov = prior_cov();
+        for k in 6..9 {
+            cov[(k, k)] = 0.1 * 0.1;
+        }
+        w.reset(13, x_dr, &cov);
+    }
+    let scale = 1.3f64;
+    let mut prev_true = x_true_new;
+    let mut worst = (0.0f64, 0.0f64);
+    for k in 14..=26u32 {
+        let t = t_new.add_ns((k - 13) as i64 * KF_PERIOD_NS);
+        let xt = truth(&sp, t);
+        let pre = preintegrate(&sp, w.newest().unwrap().1, t);
+        let mut z = relative(&prev_true, &xt);
+        z.t_i_j.translation.vector *= scale;
+        let (_, xp) = w.newest().unwrap();
+        let mut guess = xt;
+        guess.nav.p_world_m = xp.nav.p_world_m + xp.nav.r_world_body * z.t_i_j.translation.vector;
+        w.push(k, guess, pre, Some(z));
+        w.solve();
+        prev_true = xt;
+        if k > 20 {
+            let (_, x) = w.newest().unwrap();
+            worst.0 = worst
+                .0
+                .max((w.log_scale(k - 1).unwrap() - scale.ln()).abs());
+            worst.1 = worst.1.max((x.nav.p_world_m - xt.nav.p_world_m).norm());
+        }
+    }
+    worst
+}
+
+#[test]
+fn a_map_rebuilt_after_a_loss_reads_its_scale_from_the_imu_through_the_loss() {
+    let (lambda_kept, p_kept) = run_rebuilt_map(true, 2.0);
+    let (lambda_reset, p_reset) = run_rebuilt_map(false, 2.0);
+    eprintln!(
+        "kept: λ off by {lambda_kept:.4}, {p_kept:.4} m; restarted: λ off by {lambda_reset:.4}, \
+         {p_reset:.4} m"
+    );
+    // Joined through the loss, the velocity the window held before it anchors the new map's
+    // scale: λ within 2 % of the map's 30 % …
+    assert!(lambda_kept < 0.02, "kept: λ off by {lambda_kept}");
+    // … where a window restarted at the dead-reckoned state holds λ near 0 by its prior and
+    // takes the velocity error as the truth.
+    assert!(
+        lambda_reset > 2.0 * lambda_kept.max(0.01),
+        "restarted: λ off by {lambda_reset}"
+    );
+    assert!(p_reset > p_kept, "{p_reset} m restarted, {p_kept} m kept");
+}

@@ -111,6 +111,11 @@ impl Config {
                 "map_scale_initial_std",
                 self.window.map_scale_initial_std,
             ),
+            (
+                "window",
+                "map_scale_rebuilt_std",
+                self.window.map_scale_rebuilt_std,
+            ),
         ];
         for (table, key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -125,6 +130,11 @@ impl Config {
         for (key, v, max) in [
             ("map_scale_gain", w.map_scale_gain, 1.0),
             ("map_scale_max_step", w.map_scale_max_step, 0.5),
+            (
+                "keep_across_rebuild_max_s",
+                w.keep_across_rebuild_max_s,
+                10.0,
+            ),
         ] {
             if !(v.is_finite() && (0.0..=max).contains(&v)) {
                 return Err(format!(

@@ -95,6 +95,9 @@ pub struct ReplayReport {
     /// First maps started in flight that did not start in time from the dead reckoning and were
     /// installed with guessed depths instead (`[bootstrap] reinit_guessed_depths`).
     pub reinit_guessed_keyframes: usize,
+    /// First maps started in flight that joined the keyframe window through the loss instead of
+    /// restarting it (`[window] keep_across_rebuild`).
+    pub window_kept_across_rebuild: u32,
     /// Longest time from a loss to tracking again, s (`None`: no loss recovered).
     pub recovery_s_max: Option<f64>,
     /// Lost and not tracking again when the replay ended: for this long, s (an in-flight first
@@ -337,6 +340,7 @@ impl ReplayReport {
             resumes: out.odometry.resumes,
             relocalisations: out.odometry.relocalisations,
             reinit_guessed_keyframes: out.odometry.reinit_guessed_keyframes,
+            window_kept_across_rebuild: out.odometry.window_kept_across_rebuild,
             recovery_s_max: recoveries.recovered_s.iter().copied().reduce(f64::max),
             unrecovered_s: recoveries.unrecovered_s,
             mapping_jobs_dropped: out.odometry.jobs_dropped,
@@ -577,8 +581,11 @@ impl ReplayReport {
                 match self.reinit_guessed_keyframes {
                     0 => String::new(),
                     n => format!(", {n} first maps restarted with guessed depths"),
-                }
-            ),
+                },
+            ) + &match self.window_kept_across_rebuild {
+                0 => String::new(),
+                n => format!("; {n} first maps in flight joined the window through the loss"),
+            },
         );
         if self.recovery_s_max.is_some() || self.unrecovered_s.is_some() {
             let longest = self

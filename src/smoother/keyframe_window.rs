@@ -77,6 +77,17 @@ pub struct WindowConfig {
     pub map_scale_gain: f64,
     /// At most this much of λ is corrected per keyframe.
     pub map_scale_max_step: f64,
+    /// A first map started again in flight after a loss joins the window by the IMU through the
+    /// loss instead of restarting it ([`KeyframeWindow::push_new_map`]): the velocity, biases and
+    /// gravity the window held before the loss anchor the new map's scale. Off: the window
+    /// restarts at the new map from the dead-reckoned state.
+    pub keep_across_rebuild: bool,
+    /// Standard deviation of a rebuilt map's λ about the λ before the loss (its depths come
+    /// from a dead-reckoned baseline or are guessed, unrelated to the maps before).
+    pub map_scale_rebuilt_std: f64,
+    /// A loss longer than this (s, last keyframe to the new map) restarts the window anyway:
+    /// the IMU alone over it no longer says much about the velocity.
+    pub keep_across_rebuild_max_s: f64,
 }
 
 impl Default for WindowConfig {
@@ -94,6 +105,9 @@ impl Default for WindowConfig {
             map_scale_initial_std: 0.05,
             map_scale_gain: 0.5,
             map_scale_max_step: 0.05,
+            keep_across_rebuild: true,
+            map_scale_rebuilt_std: 0.5,
+            keep_across_rebuild_max_s: 5.0,
         }
     }
 }
@@ -113,6 +127,9 @@ struct Node {
     /// at this keyframe's λ, and λ is not tied to the predecessor's by the random walk step but
     /// only by `map_scale_initial_std`.
     visual_on_own_map: bool,
+    /// This keyframe's map was started anew (a first map rebuilt in flight): its λ is tied to
+    /// the predecessor's only by `map_scale_rebuilt_std`, and no relative pose joins them.
+    new_map: bool,
     /// IMU from the previous node to this one (linearised at the previous node's bias then).
     imu: Option<Preintegration>,
     /// Relative pose previous → this, from tracking.
@@ -219,6 +236,7 @@ impl KeyframeWindow {
             log_scale: 0.0,
             scale_correction: 0.0,
             visual_on_own_map: false,
+            new_map: false,
             imu: None,
             visual: None,
         });
@@ -327,9 +345,24 @@ impl KeyframeWindow {
             log_scale,
             scale_correction: 0.0,
             visual_on_own_map: false,
+            new_map: false,
             imu: Some(imu),
             visual,
         });
+    }
+
+    /// Adds keyframe `id` at state `x` as the first keyframe of a map started anew after a loss,
+    /// joined to the newest by the IMU through the loss only (no relative pose was tracked) and
+    /// its λ loosely to the newest's (`map_scale_rebuilt_std`). Nothing is solved: `x` is the
+    /// IMU's prediction from the newest already. Does nothing on an empty window.
+    pub fn push_new_map(&mut self, id: u32, x: FrameState, imu: Preintegration) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        self.push(id, x, imu, None);
+        if let Some(n) = self.nodes.back_mut() {
+            n.new_map = true;
+        }
     }
 
     fn unknowns(&self) -> Unknowns {
@@ -492,7 +525,9 @@ impl KeyframeWindow {
             }
             if b == 16 {
                 // The random walk of the map's scale from keyframe i to j.
-                let std = if node.visual_on_own_map {
+                let std = if node.new_map {
+                    self.cfg.map_scale_rebuilt_std
+                } else if node.visual_on_own_map {
                     self.cfg.map_scale_initial_std
                 } else {
                     self.cfg.map_scale_step_std

@@ -435,6 +435,9 @@ pub struct OdometryStats {
     pub resumes: u32,
     /// Of `resets`, those that relocalised on a stored keyframe (`[bootstrap] relocalise`).
     pub relocalisations: u32,
+    /// First maps started again in flight that joined the keyframe window across the loss
+    /// (`[window] keep_across_rebuild`) instead of restarting it.
+    pub window_kept_across_rebuild: u32,
     pub keyframes: usize,
     /// Times the tracker returned to a stored keyframe instead of starting a new one.
     pub keyframe_reuses: usize,
@@ -1341,7 +1344,7 @@ impl Odometry {
     /// triangulate from and the new one is installed at once with guessed depths
     /// (`[bootstrap] reinit_guessed_depths`; phase `Tracking`).
     fn restart_first_map(&mut self, frame: &MapFrame, guessed: bool) {
-        self.reset_window();
+        self.window_across_loss();
         self.takeoff = self.in_flight_takeoff(frame);
         self.start_keyframe(frame.clone(), Vec::new(), false);
         self.init_started = Some(frame.t);
@@ -1349,6 +1352,35 @@ impl Odometry {
         if guessed && self.cfg.bootstrap.reinit_guessed_depths {
             self.install_reinit_keyframe(frame);
         }
+    }
+
+    /// A first map is about to be started again in flight, at the tracker's (dead-reckoned)
+    /// state: with `[window] keep_across_rebuild`, and the IMU since the window's newest keyframe
+    /// still buffered and spanning at most `keep_across_rebuild_max_s`, the new map's first
+    /// keyframe joins the window by the IMU through the loss
+    /// ([`KeyframeWindow::push_new_map`]); otherwise the window restarts there.
+    fn window_across_loss(&mut self) {
+        let w = &self.cfg.window;
+        let x = *self.tracker.state();
+        let joined = w.enabled
+            && w.keep_across_rebuild
+            && self.window.newest().is_some_and(|(_, xn)| {
+                let gap_s = x.nav.t.secs_since(xn.nav.t);
+                gap_s > 0.0
+                    && gap_s <= w.keep_across_rebuild_max_s
+                    && self.imu.front().is_some_and(|s| s.t <= xn.nav.t)
+            });
+        if !joined {
+            self.reset_window();
+            return;
+        }
+        let Some((_, xn)) = self.window.newest().map(|(i, xn)| (i, *xn)) else {
+            return;
+        };
+        let mut pre = Preintegration::new(xn.nav.t, xn.bias);
+        pre.integrate(self.imu.make_contiguous(), x.nav.t, Some(&self.imu_noise));
+        self.window.push_new_map(self.next_kf_id, x, pre);
+        self.stats.window_kept_across_rebuild += 1;
     }
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
