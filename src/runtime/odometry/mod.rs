@@ -1374,7 +1374,7 @@ impl Odometry {
             self.reset_window();
             return;
         }
-        let Some((_, xn)) = self.window.newest().map(|(i, xn)| (i, *xn)) else {
+        let Some(xn) = self.window.newest().map(|(_, xn)| *xn) else {
             return;
         };
         let mut pre = Preintegration::new(xn.nav.t, xn.bias);
