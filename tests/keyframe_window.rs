@@ -282,6 +282,28 @@ fn a_heading_and_position_change_of_the_whole_window_is_a_change_of_gauge() {
 /// large (`e^λ` from 1.0 to 1.1, a step of 0.4 % per keyframe, within the random walk's σ).
 /// Returns the worst errors over the last 8 solves: (newest position m, λ of the newest map
 /// tracked against − the truth).
+/// Keyframe `k` at the true state `xt`, tracked from `prev_true` on a map `scale` times metric:
+/// its relative pose is the true one with the translation scaled, and the tracker's guess
+/// follows the map (the newest keyframe placed by the tracked translation from the previous
+/// estimate). Pushed with the noise-free IMU and solved.
+fn push_tracked_on_scaled_map(
+    w: &mut KeyframeWindow,
+    sp: &PoseSpline,
+    k: u32,
+    prev_true: &FrameState,
+    xt: &FrameState,
+    scale: f64,
+) {
+    let pre = preintegrate(sp, w.newest().unwrap().1, xt.nav.t);
+    let mut z = relative(prev_true, xt);
+    z.t_i_j.translation.vector *= scale;
+    let (_, xp) = w.newest().unwrap();
+    let mut guess = *xt;
+    guess.nav.p_world_m = xp.nav.p_world_m + xp.nav.r_world_body * z.t_i_j.translation.vector;
+    w.push(k, guess, pre, Some(z));
+    w.solve();
+}
+
 fn run_growing_maps(map_scale: bool) -> (f64, f64) {
     let sp = flight();
     let mut w = KeyframeWindow::new(
@@ -302,18 +324,9 @@ fn run_growing_maps(map_scale: bool) -> (f64, f64) {
     for k in 1..=24u32 {
         let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
         let xt = truth(&sp, t);
-        let pre = preintegrate(&sp, w.newest().unwrap().1, t);
         // Keyframe k − 1's map, e^λ = 1 + 0.1 (k − 1) / 23.
         let scale = 1.0 + 0.1 * (k - 1) as f64 / 23.0;
-        let mut z = relative(&prev_true, &xt);
-        z.t_i_j.translation.vector *= scale;
-        // The tracker's guess follows the map: the newest keyframe is placed by the tracked
-        // translation from the previous estimate.
-        let (_, xp) = w.newest().unwrap();
-        let mut guess = xt;
-        guess.nav.p_world_m = xp.nav.p_world_m + xp.nav.r_world_body * z.t_i_j.translation.vector;
-        w.push(k, guess, pre, Some(z));
-        w.solve();
+        push_tracked_on_scaled_map(&mut w, &sp, k, &prev_true, &xt, scale);
         prev_true = xt;
         let (_, x) = w.newest().unwrap();
         if k > 16 {
@@ -384,14 +397,7 @@ fn run_rebuilt_map(keep: bool, gap_s: f64) -> (f64, f64) {
     for k in 14..=26u32 {
         let t = t_new.add_ns((k - 13) as i64 * KF_PERIOD_NS);
         let xt = truth(&sp, t);
-        let pre = preintegrate(&sp, w.newest().unwrap().1, t);
-        let mut z = relative(&prev_true, &xt);
-        z.t_i_j.translation.vector *= scale;
-        let (_, xp) = w.newest().unwrap();
-        let mut guess = xt;
-        guess.nav.p_world_m = xp.nav.p_world_m + xp.nav.r_world_body * z.t_i_j.translation.vector;
-        w.push(k, guess, pre, Some(z));
-        w.solve();
+        push_tracked_on_scaled_map(&mut w, &sp, k, &prev_true, &xt, scale);
         prev_true = xt;
         if k > 20 {
             let (_, x) = w.newest().unwrap();
