@@ -574,7 +574,7 @@ impl ReplayReport {
         row(
             "resets",
             format!(
-                "{} ({} resumed on the keyframe lost, {} relocalised on a stored one{})",
+                "{} ({} resumed on the keyframe lost, {} relocalised on a stored one{}){}",
                 self.resets,
                 self.resumes,
                 self.relocalisations,
@@ -582,10 +582,11 @@ impl ReplayReport {
                     0 => String::new(),
                     n => format!(", {n} first maps restarted with guessed depths"),
                 },
-            ) + &match self.window_kept_across_rebuild {
-                0 => String::new(),
-                n => format!("; {n} first maps in flight joined the window through the loss"),
-            },
+                match self.window_kept_across_rebuild {
+                    0 => String::new(),
+                    n => format!("; {n} first maps in flight joined the window through the loss"),
+                }
+            ),
         );
         if self.recovery_s_max.is_some() || self.unrecovered_s.is_some() {
             let longest = self

@@ -1362,25 +1362,33 @@ impl Odometry {
     fn window_across_loss(&mut self) {
         let w = &self.cfg.window;
         let x = *self.tracker.state();
-        let joined = w.enabled
-            && w.keep_across_rebuild
-            && self.window.newest().is_some_and(|(_, xn)| {
+        let joinable = (w.enabled && w.keep_across_rebuild)
+            .then(|| self.window.newest().map(|(_, xn)| *xn))
+            .flatten()
+            .filter(|xn| {
                 let gap_s = x.nav.t.secs_since(xn.nav.t);
-                gap_s > 0.0
-                    && gap_s <= w.keep_across_rebuild_max_s
-                    && self.imu.front().is_some_and(|s| s.t <= xn.nav.t)
+                gap_s > 0.0 && gap_s <= w.keep_across_rebuild_max_s && self.imu_buffered_since(xn)
             });
-        if !joined {
+        let Some(xn) = joinable else {
             self.reset_window();
             return;
-        }
-        let Some(xn) = self.window.newest().map(|(_, xn)| *xn) else {
-            return;
         };
-        let mut pre = Preintegration::new(xn.nav.t, xn.bias);
-        pre.integrate(self.imu.make_contiguous(), x.nav.t, Some(&self.imu_noise));
+        let pre = self.preintegrate_buffered(&xn, x.nav.t);
         self.window.push_new_map(self.next_kf_id, x, pre);
         self.stats.window_kept_across_rebuild += 1;
+    }
+
+    /// Whether the IMU buffer still reaches back to keyframe state `from`.
+    fn imu_buffered_since(&self, from: &FrameState) -> bool {
+        self.imu.front().is_some_and(|s| s.t <= from.nav.t)
+    }
+
+    /// The buffered IMU from keyframe state `from` to `t`, preintegrated at `from`'s bias with
+    /// the odometry's noise (a keyframe window factor; [`Odometry::imu_buffered_since`] first).
+    fn preintegrate_buffered(&mut self, from: &FrameState, t: TimeNs) -> Preintegration {
+        let mut pre = Preintegration::new(from.nav.t, from.bias);
+        pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
+        pre
     }
 
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
@@ -1407,8 +1415,7 @@ impl Odometry {
             self.reset_window();
             return None;
         };
-        let buffered_from = self.imu.front().map(|s| s.t);
-        let buffered = buffered_from.is_some_and(|t0| t0 <= x_prev.nav.t);
+        let buffered = self.imu_buffered_since(&x_prev);
         let mut across_return = false;
         let visual = if self.tracking_kf == Some(newest) && buffered {
             self.tracker
@@ -1446,8 +1453,7 @@ impl Odometry {
         };
         let tracked_newest = visual.is_some() && !across_return;
         let x_prev = *self.window.newest()?.1;
-        let mut pre = Preintegration::new(x_prev.nav.t, x_prev.bias);
-        pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
+        let pre = self.preintegrate_buffered(&x_prev, t);
         let old = result.state;
         self.window.push(id, old, pre, visual);
         if across_return {
