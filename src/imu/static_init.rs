@@ -88,7 +88,8 @@
 //!   error of `atan(|b_⊥| / g) ≈ |b_⊥| / g` rad: 0.058° per 0.01 m/s², 0.58° for 0.1 m/s², 2.9°
 //!   for 0.5 m/s². The gyro bias, in contrast, is observed directly. The accelerometer bias must be
 //!   estimated later, once the vehicle rotates (the VI bootstrap); [`StaticEstimate::imu_bias`]
-//!   reports it as zero.
+//!   reports it as zero, and [`rest_covariance`] gives the rest state a tilt uncertainty that
+//!   includes it, so that the estimator can move the tilt when the first turn shows the bias.
 //! * **Yaw** is unobservable without a heading sensor; it is set from
 //!   [`StaticDetectorConfig::yaw_rad`].
 //! * **Slow motion.** A constant rotation slower than about `drift · thr_ω` (11 mrad/s, 0.65°/s
@@ -104,10 +105,10 @@
 //! except at block ends (O(window) while not static) and allocates nothing: the window is a
 //! fixed-size ring of [`MAX_WINDOW_BLOCKS`] block summaries.
 
-use super::{ImuBias, ImuNoise, ImuSample, NavState};
+use super::{ImuBias, ImuNoise, ImuSample, Matrix15, NavState};
 use crate::geometry::GRAVITY_M_S2;
 use crate::time::TimeNs;
-use nalgebra::{SVector, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, SVector, UnitQuaternion, Vector3};
 
 /// Capacity of the detector's block ring: the window may span at most this many blocks.
 pub const MAX_WINDOW_BLOCKS: usize = 32;
@@ -878,6 +879,46 @@ impl StaticDetector {
     }
 }
 
+/// Standard deviation of the rest state's yaw, rad: unobservable by the IMU, set by
+/// [`StaticDetectorConfig::yaw_rad`]; loose, but not free (the estimator's gauge).
+pub const REST_YAW_STD_RAD: f64 = 0.01;
+
+/// Covariance of a state held at rest with attitude `r_world_body`, in the order and increment
+/// convention of [`super::FrameState::boxplus`] (`[δθ, δp, δv, δbω, δba]`, δθ in the body frame):
+/// position and velocity known to 1 mm / 1 mm/s (the pad is the origin), gyro bias to 1 mrad/s,
+/// the accelerometer bias to `accel_bias_std_m_s2` on each axis, and the attitude —
+///
+/// * about the axes across gravity (roll/pitch): `σ² = tilt_sigma_rad² + (accel_bias_std_m_s2 /
+///   g)²`. The first term is the statistical error of the gravity direction
+///   ([`StaticEstimate::tilt_sigma_rad`]); the second is the accelerometer bias across gravity
+///   that the rest absorbed into the tilt (module docs, *What a static IMU cannot tell*) — a tilt
+///   held to the first alone keeps that bias's error once the vehicle turns and the bias becomes
+///   observable;
+/// * about the vertical (yaw): [`REST_YAW_STD_RAD`].
+///
+/// The axes are taken about the body's up direction `R_wbᵀ ẑ`, whatever the IMU's mounting (on
+/// EuRoC and the built-in flights body x points up, so body z is a tilt axis, not yaw).
+pub fn rest_covariance(
+    r_world_body: &UnitQuaternion<f64>,
+    tilt_sigma_rad: f64,
+    accel_bias_std_m_s2: f64,
+) -> Matrix15 {
+    let up = r_world_body.inverse() * Vector3::z();
+    let along = up * up.transpose();
+    let across = Matrix3::identity() - along;
+    let tilt_var = tilt_sigma_rad.powi(2) + (accel_bias_std_m_s2 / GRAVITY_M_S2).powi(2);
+    let rot = across * tilt_var + along * REST_YAW_STD_RAD.powi(2);
+    let mut cov = Matrix15::zeros();
+    cov.fixed_view_mut::<3, 3>(0, 0).copy_from(&rot);
+    for k in 3..12 {
+        cov[(k, k)] = 1e-6;
+    }
+    for k in 12..15 {
+        cov[(k, k)] = accel_bias_std_m_s2.powi(2);
+    }
+    cov
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1460,5 +1501,36 @@ mod tests {
             .sum::<Vector3<f64>>()
             / 49.0;
         assert!((all.std() - var.map(f64::sqrt)).norm() < 1e-12);
+    }
+    #[test]
+    fn the_rest_covariance_frees_the_tilt_that_a_bias_across_gravity_can_be() {
+        // Body x up (EuRoC's mounting), pitched 14°: the rotation block has the yaw variance
+        // along the body's up direction and σ² = tilt² + (σ_ba/g)² across it.
+        let r = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -std::f64::consts::FRAC_PI_2)
+            * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.25);
+        let up = r.inverse() * Vector3::z();
+        assert!(up.x > 0.95, "body x is up: {up}");
+        let cov = rest_covariance(&r, 1e-3, 0.1);
+        let rot = cov.fixed_view::<3, 3>(0, 0).into_owned();
+        let yaw_var = (up.transpose() * rot * up)[0];
+        assert!(
+            (yaw_var - REST_YAW_STD_RAD.powi(2)).abs() < 1e-12,
+            "{yaw_var}"
+        );
+        let tilt_var = 1e-6 + (0.1 / GRAVITY_M_S2).powi(2);
+        for across in [
+            up.cross(&Vector3::y()).normalize(),
+            up.cross(&Vector3::z()).normalize(),
+        ] {
+            let v = (across.transpose() * rot * across)[0];
+            assert!((v - tilt_var).abs() < 1e-12, "{v} vs {tilt_var}");
+            assert!((rot * across - across * tilt_var).norm() < 1e-12);
+        }
+        // A bias across gravity of σ_ba, absorbed into the tilt, is a 1-σ tilt.
+        assert!((tilt_var.sqrt() - 0.1 / GRAVITY_M_S2).abs() < 1e-4);
+        for k in 12..15 {
+            assert!((cov[(k, k)] - 0.01).abs() < 1e-15);
+        }
+        assert!(cov.cholesky().is_some());
     }
 }

@@ -67,7 +67,9 @@ use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
 use crate::imu::scale_alignment::AlignmentPrior;
-use crate::imu::static_init::{StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent};
+use crate::imu::static_init::{
+    StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent, rest_covariance,
+};
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::{SemidenseConfig, SemidenseMap};
 use crate::smoother::photometric_bundle::BundleConfig;
@@ -184,9 +186,11 @@ pub struct BootstrapConfig {
     pub refinement_nice: i32,
     /// Seed each new keyframe with the previous keyframe's map (DPPTAM's propagation).
     pub propagate_maps: bool,
-    /// Prior standard deviation of the accelerometer bias when motion starts, m/s².
+    /// Prior standard deviation of the accelerometer bias when motion starts, m/s² (each axis;
+    /// across gravity it also loosens the tilt: `imu::static_init::rest_covariance`).
     pub rest_accel_bias_std_m_s2: f64,
-    /// Lower bound of the prior standard deviation of the tilt from the rest period, rad.
+    /// Lower bound of the statistical standard deviation of the tilt from the rest period, rad
+    /// (before the bias across gravity is added to it).
     pub rest_min_tilt_std_rad: f64,
     /// A keyframe whose map has fewer points than this (a turn on the spot) is tracked with its
     /// depthless gradient pixels too, at the map's median depth, and installed without waiting
@@ -1173,7 +1177,10 @@ impl Odometry {
         let tilt = est
             .map_or(0.01, |e| e.tilt_sigma_rad)
             .max(b.rest_min_tilt_std_rad);
-        let cov = static_covariance(tilt, b.rest_accel_bias_std_m_s2);
+        // The tilt also carries the accelerometer bias across gravity that the rest cannot tell
+        // from it (`rest_covariance`); a correlated prior saying exactly that (only the
+        // combination known) lost on the demo and S-V101 (docs/odometry-log.md).
+        let cov = rest_covariance(&x.nav.r_world_body, tilt, b.rest_accel_bias_std_m_s2);
         self.tracker.reset_state(x, cov);
         self.tracker.load_frame(image);
         self.last_t = Some(t);
@@ -1697,23 +1704,6 @@ fn rest_state_from(e: &StaticEstimate, t: TimeNs) -> FrameState {
         x.bias.accel_m_s2 = f.normalize() * (f.norm() - crate::geometry::GRAVITY_M_S2);
     }
     x
-}
-
-/// Covariance of the held rest state: position and velocity known (the pad is the origin), tilt
-/// from the rest estimate, yaw free-ish, gyro bias well known, accelerometer bias not observed.
-///
-/// Tilt and the accelerometer bias across gravity are confounded at rest (only their combination
-/// `R_wbᵀ g_up + b_a` is measured). A correlated prior that says exactly that was tried: it lets
-/// the keyframe window swing the tilt by 2° when the first keyframes' relative poses disagree with
-/// the IMU, and lost on both the demo and S-V101, so the diagonal prior stays.
-fn static_covariance(tilt_sigma_rad: f64, accel_bias_std_m_s2: f64) -> Matrix15 {
-    let tilt = tilt_sigma_rad.max(1e-3);
-    let ba = accel_bias_std_m_s2;
-    // [θx, θy, θz (yaw), p, v, bω, ba]
-    let s = [
-        tilt, tilt, 0.01, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, ba, ba, ba,
-    ];
-    Matrix15::from_fn(|a, b| if a == b { s[a] * s[a] } else { 0.0 })
 }
 
 #[cfg(test)]
