@@ -1502,6 +1502,7 @@ mod tests {
             / 49.0;
         assert!((all.std() - var.map(f64::sqrt)).norm() < 1e-12);
     }
+
     #[test]
     fn the_rest_covariance_frees_the_tilt_that_a_bias_across_gravity_can_be() {
         // Body x up (EuRoC's mounting), pitched 14°: the rotation block has the yaw variance

@@ -102,6 +102,16 @@ impl Config {
                 self.bootstrap.takeoff_bundle_smoothness_rel_std,
             ),
             (
+                "bootstrap",
+                "rest_accel_bias_std_m_s2",
+                self.bootstrap.rest_accel_bias_std_m_s2,
+            ),
+            (
+                "bootstrap",
+                "rest_min_tilt_std_rad",
+                self.bootstrap.rest_min_tilt_std_rad,
+            ),
+            (
                 "window",
                 "map_scale_step_std",
                 self.window.map_scale_step_std,
