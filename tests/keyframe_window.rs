@@ -3,29 +3,18 @@
 //! velocity and biases it converges to the truth — what the frame-to-keyframe tracker alone
 //! cannot do once a keyframe is wrong.
 
-use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
-use vidslam::imu::{FrameState, ImuBias, ImuNoise, ImuSample, Matrix15, Preintegration};
-use vidslam::sim::flights::builtin_flight;
+mod demo_flight;
+
+use demo_flight::{flight, truth};
+use nalgebra::{Isometry3, Matrix6, UnitQuaternion, Vector3};
+use vidslam::imu::{FrameState, ImuNoise, ImuSample, Matrix15, Preintegration};
+use vidslam::sim::PoseSpline;
 use vidslam::sim::imu_synth::ideal_imu;
-use vidslam::sim::{PoseSpline, fit_pose_spline};
 use vidslam::smoother::{KeyframeWindow, RelativePose, WindowConfig};
 use vidslam::time::TimeNs;
 use vidslam::tracking::pose_of;
 
 const KF_PERIOD_NS: i64 = 250_000_000;
-
-fn flight() -> PoseSpline {
-    let tb = Isometry3::from_parts(Translation3::identity(), UnitQuaternion::identity());
-    let tr = builtin_flight("demo", &tb).unwrap();
-    fit_pose_spline(&tr.poses, 50_000_000).unwrap().0
-}
-
-fn truth(sp: &PoseSpline, t: TimeNs) -> FrameState {
-    FrameState {
-        nav: sp.nav_state(t),
-        bias: ImuBias::default(),
-    }
-}
 
 /// The noise-free IMU from keyframe state `from` to `t`, preintegrated at its bias.
 fn preintegrate(sp: &PoseSpline, from: &FrameState, t: TimeNs) -> Preintegration {
