@@ -1179,7 +1179,8 @@ impl Odometry {
             .max(b.rest_min_tilt_std_rad);
         // The tilt also carries the accelerometer bias across gravity that the rest cannot tell
         // from it (`rest_covariance`); a correlated prior saying exactly that (only the
-        // combination known) lost on the demo and S-V101 (docs/odometry-log.md).
+        // combination known) lost on the demo and S-V101 when the keyframe window was new
+        // (docs/odometry-log.md, *The rest prior held a tilt the accelerometer bias had taken*).
         let cov = rest_covariance(&x.nav.r_world_body, tilt, b.rest_accel_bias_std_m_s2);
         self.tracker.reset_state(x, cov);
         self.tracker.load_frame(image);
