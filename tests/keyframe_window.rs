@@ -5,51 +5,14 @@
 
 mod demo_flight;
 
-use demo_flight::{flight, truth};
-use nalgebra::{Isometry3, Matrix6, UnitQuaternion, Vector3};
-use vidslam::imu::{FrameState, ImuNoise, ImuSample, Matrix15, Preintegration};
+use demo_flight::{flight, preintegrate, relative, truth, window};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use vidslam::imu::{FrameState, ImuNoise, Matrix15};
 use vidslam::sim::PoseSpline;
-use vidslam::sim::imu_synth::ideal_imu;
-use vidslam::smoother::{KeyframeWindow, RelativePose, WindowConfig};
-use vidslam::time::TimeNs;
+use vidslam::smoother::{KeyframeWindow, WindowConfig};
 use vidslam::tracking::pose_of;
 
 const KF_PERIOD_NS: i64 = 250_000_000;
-
-/// The noise-free IMU from keyframe state `from` to `t`, preintegrated at its bias.
-fn preintegrate(sp: &PoseSpline, from: &FrameState, t: TimeNs) -> Preintegration {
-    let n = (t.0 - from.nav.t.0) / 5_000_000;
-    let imu: Vec<ImuSample> = (0..=n)
-        .map(|k| ideal_imu(sp, from.nav.t.add_ns(k * 5_000_000)))
-        .collect();
-    let mut pre = Preintegration::new(from.nav.t, from.bias);
-    pre.integrate(&imu, t, Some(&ImuNoise::euroc_adis16448()));
-    pre
-}
-
-/// A window that trusts the relative poses and the (noise-free) IMU at face value.
-fn window(max_keyframes: usize) -> KeyframeWindow {
-    let cfg = WindowConfig {
-        visual_rotation_information_scale: 1.0,
-        visual_translation_information_scale: 1.0,
-        imu_noise_scale: 1.0,
-        max_keyframes,
-        ..WindowConfig::default()
-    };
-    KeyframeWindow::new(cfg, ImuNoise::euroc_adis16448())
-}
-
-fn relative(a: &FrameState, b: &FrameState) -> RelativePose {
-    let mut info = Matrix6::identity();
-    for k in 0..3 {
-        info[(k, k)] = 1e6; // 1 mrad
-        info[(k + 3, k + 3)] = 1e4; // 1 cm
-    }
-    RelativePose {
-        t_i_j: pose_of(a).inverse() * pose_of(b),
-        information: info,
-    }
-}
 
 fn prior_cov() -> Matrix15 {
     let s = [

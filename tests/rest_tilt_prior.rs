@@ -12,53 +12,15 @@
 
 mod demo_flight;
 
-use demo_flight::{flight, truth};
-use nalgebra::{Matrix6, UnitQuaternion, Vector3};
+use demo_flight::{flight, preintegrate_with_accel_bias, relative, truth, window};
+use nalgebra::{UnitQuaternion, Vector3};
 use vidslam::geometry::GRAVITY_M_S2;
 use vidslam::imu::static_init::rest_covariance;
-use vidslam::imu::{FrameState, ImuNoise, ImuSample, Matrix15, Preintegration};
-use vidslam::sim::PoseSpline;
-use vidslam::sim::imu_synth::ideal_imu;
-use vidslam::smoother::{KeyframeWindow, RelativePose, WindowConfig};
-use vidslam::time::TimeNs;
+use vidslam::imu::{FrameState, Matrix15};
+use vidslam::smoother::WindowConfig;
 use vidslam::tracking::pose_of;
 
 const KF_PERIOD_NS: i64 = 250_000_000;
-const IMU_PERIOD_NS: i64 = 5_000_000;
-
-/// The IMU with accelerometer bias `bias_m_s2`, from keyframe state `from` to `t`, preintegrated
-/// at `from`'s bias estimate.
-fn preintegrate(
-    sp: &PoseSpline,
-    bias_m_s2: &Vector3<f64>,
-    from: &FrameState,
-    t: TimeNs,
-) -> Preintegration {
-    let n = (t.0 - from.nav.t.0) / IMU_PERIOD_NS;
-    let imu: Vec<ImuSample> = (0..=n)
-        .map(|k| {
-            let mut s = ideal_imu(sp, from.nav.t.add_ns(k * IMU_PERIOD_NS));
-            s.accel_m_s2 += bias_m_s2;
-            s
-        })
-        .collect();
-    let mut pre = Preintegration::new(from.nav.t, from.bias);
-    pre.integrate(&imu, t, Some(&ImuNoise::euroc_adis16448()));
-    pre
-}
-
-/// Relative pose `a → b` at 1 mrad / 1 cm.
-fn relative(a: &FrameState, b: &FrameState) -> RelativePose {
-    let mut info = Matrix6::identity();
-    for k in 0..3 {
-        info[(k, k)] = 1e6;
-        info[(k + 3, k + 3)] = 1e4;
-    }
-    RelativePose {
-        t_i_j: pose_of(a).inverse() * pose_of(b),
-        information: info,
-    }
-}
 
 /// The prior the odometry used until 2026-11-28: diagonal, 1 mrad about body x and y, 0.01 rad
 /// about body z taken for yaw. Body z is not up here either (this flight's body frame is its
@@ -93,15 +55,7 @@ fn fly(bias_m_s2: Vector3<f64>, prior: impl Fn(&FrameState) -> Matrix15) -> Outc
     start.nav.r_world_body = x0.nav.r_world_body * tilt;
     let seen = start.nav.r_world_body.inverse() * Vector3::z();
     assert!((seen - up_seen).norm() < 1e-9);
-    let mut w = KeyframeWindow::new(
-        WindowConfig {
-            visual_rotation_information_scale: 1.0,
-            visual_translation_information_scale: 1.0,
-            imu_noise_scale: 1.0,
-            ..WindowConfig::default()
-        },
-        ImuNoise::euroc_adis16448(),
-    );
+    let mut w = window(WindowConfig::default().max_keyframes);
     w.reset(0, start, &prior(&start));
     let mut prev_true = x0;
     let mut worst = 0.0f64;
@@ -110,7 +64,7 @@ fn fly(bias_m_s2: Vector3<f64>, prior: impl Fn(&FrameState) -> Matrix15) -> Outc
         let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
         let xt = truth(&sp, t);
         let (_, newest) = w.newest().unwrap();
-        let pre = preintegrate(&sp, &bias_m_s2, newest, t);
+        let pre = preintegrate_with_accel_bias(&sp, &bias_m_s2, newest, t);
         // The tracker's guess: the truth relative to the newest estimate.
         let guess_pose = pose_of(newest) * relative(&prev_true, &xt).t_i_j;
         let mut g = *newest;
