@@ -34,6 +34,9 @@ pub struct ReplayReport {
     pub keyframe_reuses: usize,
     /// Of these, returns that lost track at once (back to the keyframe left).
     pub keyframe_reuse_failures: usize,
+    /// Of these, failing frames tracked again on the keyframe left, from the state the chain of
+    /// new keyframes would have had without the return.
+    pub chain_retracks: usize,
     /// Keyframes stored for returning to them.
     pub keyframes_stored: usize,
     /// Keyframes of turns on the spot made by the tracking thread without waiting for the mapper
@@ -289,6 +292,7 @@ impl ReplayReport {
             keyframes: out.odometry.keyframes,
             keyframe_reuses: out.odometry.keyframe_reuses,
             keyframe_reuse_failures: out.odometry.keyframe_reuse_failures,
+            chain_retracks: out.odometry.chain_retracks,
             keyframes_stored: out.odometry.keyframes_stored,
             spot_turn_keyframes: out.odometry.spot_turn_keyframes,
             returns_out_of_view: out.odometry.returns_out_of_view,
@@ -492,10 +496,13 @@ impl ReplayReport {
         );
         row("keyframes", self.keyframes.to_string());
         row(
-            "keyframe returns (failed) / stored",
+            "keyframe returns (failed, re-tracked) / stored",
             format!(
-                "{} ({}) / {}",
-                self.keyframe_reuses, self.keyframe_reuse_failures, self.keyframes_stored
+                "{} ({}, {}) / {}",
+                self.keyframe_reuses,
+                self.keyframe_reuse_failures,
+                self.chain_retracks,
+                self.keyframes_stored
             ),
         );
         row(

@@ -237,6 +237,19 @@ impl Tracker {
         self.keyframe.replace(kf)
     }
 
+    /// The affine brightness of the current frame relative to the keyframe tracked against:
+    /// `(log_gain, offset_gray)`, `I_j ≈ e^log_gain I_i + offset_gray`.
+    pub fn brightness(&self) -> (f64, f64) {
+        (self.log_gain, self.offset_gray)
+    }
+
+    /// Restores a brightness of [`Self::brightness`] (back on a keyframe tracked before, whose
+    /// estimate `set_keyframe` reset).
+    pub fn set_brightness(&mut self, (log_gain, offset_gray): (f64, f64)) {
+        self.log_gain = log_gain;
+        self.offset_gray = offset_gray;
+    }
+
     /// Moves the keyframe tracked against to `t_world_cam` (the keyframe window corrected it).
     pub fn set_keyframe_pose(&mut self, t_world_cam: Isometry3<f64>) {
         if let Some(kf) = &mut self.keyframe {

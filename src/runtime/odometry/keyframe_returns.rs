@@ -12,6 +12,7 @@ impl Odometry {
         self.reusing = false;
         self.reuse_previous = None;
         self.switch_correction = None;
+        self.chain_shadow = None;
     }
 
     /// The tracker asks for a new keyframe: if a stored keyframe (not the one tracked, not one
@@ -26,6 +27,12 @@ impl Odometry {
         let Some(id) = self.stored_keyframe_covering(&at, self.tracking_kf, after_loss) else {
             return false;
         };
+        self.switch_to(id, after_loss)
+    }
+
+    /// Tracks stored keyframe `id` from the next frame on (see
+    /// [`Self::switch_to_stored_keyframe`]). `false` if there is no such keyframe.
+    fn switch_to(&mut self, id: u32, after_loss: bool) -> bool {
         let Some(stored) = self.store.get(id).cloned() else {
             return false;
         };
@@ -55,6 +62,8 @@ impl Odometry {
             let r = &self.cfg.reuse;
             let x = *self.tracker.state();
             let mut cov = *self.tracker.covariance();
+            self.chain_shadow =
+                (!after_loss).then(|| ChainShadow::new(x, cov, self.tracker.brightness()));
             // World vertical in the body frame: the axis of a heading change.
             let a = x.nav.r_world_body.inverse() * Vector3::z();
             let yaw = a * a.transpose() * r.switch_yaw_std_rad.powi(2);
@@ -71,6 +80,26 @@ impl Odometry {
         self.keyframe_jump = true;
         self.stats.keyframe_reuses += 1;
         true
+    }
+
+    /// For tests: leaves the chain of new keyframes for a stored copy of the keyframe tracked,
+    /// misplaced by `offset_m` in the world — a stored keyframe that cannot fit the next frame,
+    /// as one whose map drifted far from the chain's. `false` (nothing done) unless a keyframe
+    /// of the chain is tracked and `[reuse]` is on.
+    pub fn inject_return_to_misplaced_keyframe(&mut self, offset_m: Vector3<f64>) -> bool {
+        if self.phase != Phase::Tracking || self.reusing || !self.cfg.reuse.enabled {
+            return false;
+        }
+        let (Some(mut kf), Some(map)) =
+            (self.tracker.keyframe().cloned(), self.tracking_map.clone())
+        else {
+            return false;
+        };
+        let mut map = (*map).clone();
+        kf.id = MISPLACED_KEYFRAME_ID;
+        kf.t_world_cam.translation.vector += offset_m;
+        map.t_world_cam.translation.vector += offset_m;
+        self.store.insert(kf, Arc::new(map)) && self.switch_to(MISPLACED_KEYFRAME_ID, false)
     }
 
     /// The stored keyframe that covers the view from `t_world_cam`, other than `current`, a
@@ -168,6 +197,29 @@ impl Odometry {
         true
     }
 
+    /// Back on the chain after a stored keyframe failed its probation
+    /// ([`Self::return_from_stored_keyframe`] went back to the keyframe left): the failing frame
+    /// at `t` is tracked again on that keyframe from the chain's state before it — the IMU's
+    /// prediction from the last frame tracked on the chain — instead of from the state the
+    /// failing keyframe pulled it to, so neither that frame's pose nor the chain's next ones
+    /// carry the disagreement between the two maps. `None` (nothing changed) if the return went
+    /// elsewhere or there is no such state.
+    pub(super) fn retrack_on_chain(&mut self, t: TimeNs, image: &Image<u8>) -> Option<TrackResult> {
+        let shadow = self.chain_shadow.take()?;
+        if self.reusing {
+            return None;
+        }
+        let pre = shadow.pre?;
+        self.tracker.set_brightness(shadow.brightness);
+        self.tracker.reset_state(shadow.before, shadow.cov);
+        let r = self.tracker.track(t, image, &pre);
+        // Continuous with the chain: no jump for the next frame to stand in for.
+        self.keyframe_jump = false;
+        self.tracked_step_m = Some(r.state.nav.p_world_m - shadow.before.nav.p_world_m);
+        self.stats.chain_retracks += 1;
+        Some(r)
+    }
+
     /// Tracks keyframe `s` again (gone back to after a stored keyframe failed).
     fn track_again(&mut self, s: StoredKeyframe) {
         self.tracking_kf = Some(s.kf.id);
@@ -178,6 +230,10 @@ impl Odometry {
         self.consecutive_flagged = 0;
     }
 }
+
+/// The id of the keyframe [`Odometry::inject_return_to_misplaced_keyframe`] stores (no mapper
+/// keyframe gets it).
+const MISPLACED_KEYFRAME_ID: u32 = u32::MAX;
 
 /// Where a stored keyframe that failed its probation sends the tracker.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -447,6 +447,9 @@ pub struct OdometryStats {
     pub keyframe_reuses: usize,
     /// Times a stored keyframe lost track right after the tracker returned to it.
     pub keyframe_reuse_failures: usize,
+    /// Of these, failing frames tracked again on the keyframe left from the chain's state
+    /// (`Odometry::retrack_on_chain`).
+    pub chain_retracks: usize,
     /// First maps started in flight installed at once with guessed depths (`[bootstrap]
     /// reinit_guessed_depths`).
     pub reinit_guessed_keyframes: usize,
@@ -611,6 +614,10 @@ pub struct Odometry {
     /// The keyframe window's correction of the keyframe about to be started across a return
     /// (`[reuse] keep_window`): the stored map seeding it moves with it.
     seed_correction: Option<Isometry3<f64>>,
+    /// The chain's state as if the last switch from it to a stored keyframe had not happened,
+    /// carried on by the IMU while that keyframe is on probation: a return that fails goes back
+    /// to the chain from it ([`Self::retrack_on_chain`]).
+    chain_shadow: Option<ChainShadow>,
     /// The keyframe tracking was lost on, when, and whether it was a stored one being reused,
     /// for `[bootstrap] resume_max_s`.
     resume: Option<(StoredKeyframe, TimeNs, bool)>,
@@ -759,6 +766,7 @@ impl Odometry {
             reusing: false,
             left_kf: None,
             switch_correction: None,
+            chain_shadow: None,
             seed_correction: None,
             resume: None,
             resumed: false,
@@ -993,6 +1001,10 @@ impl Odometry {
                         || result.inlier_ratio < r.probation_min_inlier_ratio);
                 let collapsed = self.tracker.brightness_collapsed(&result);
                 let stored_unfit = self.reusing && (failed_probation || collapsed);
+                if !self.reusing || (self.reuse_frames > r.probation_frames && !stored_unfit) {
+                    // The stored keyframe passed its probation: the chain is left for good.
+                    self.chain_shadow = None;
+                }
                 // Relocalised after a loss, a brightness collapse is the image's doing (a lens
                 // still being uncovered, the exposure settling), not the keyframe's: it stays a
                 // candidate for the next frames.
@@ -1002,7 +1014,12 @@ impl Odometry {
                     result.wants_keyframe = true;
                 }
                 if stored_unfit && !stay {
-                    // (Tracked again against the keyframe gone back to from the next frame on.)
+                    // Back on the chain: this frame tracked again on the keyframe left, from the
+                    // chain's own state (else tracked against the keyframe gone back to from the
+                    // next frame on).
+                    if let Some(r) = self.retrack_on_chain(t, &image) {
+                        result = r;
+                    }
                 } else if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
                     self.phase = Phase::Lost;
                     self.resume = self
@@ -1235,6 +1252,9 @@ impl Odometry {
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
         self.last_t = Some(t);
         let x0 = *self.tracker.state();
+        if let Some(s) = self.chain_shadow.as_mut() {
+            s.advance(&pre);
+        }
         let r = self.tracker.track(t, image, &pre);
         // The first frame on another keyframe jumps by the drift between the two: the IMU's
         // step stands in for it.
@@ -1648,6 +1668,41 @@ impl Odometry {
 /// Frames kept for a new keyframe's adjustment with the previous one (`tracked_frames`): more
 /// than a keyframe interval (a keyframe lasts 0.3–2 s at 20 Hz).
 const MAX_TRACKED_FRAMES: usize = 80;
+
+/// The state of the chain of new keyframes left for a stored one (`Odometry::chain_shadow`),
+/// predicted by the IMU from the last frame tracked on the chain.
+#[derive(Clone, Debug)]
+struct ChainShadow {
+    /// At the frame before the current one.
+    before: FrameState,
+    /// At the current frame.
+    now: FrameState,
+    /// The IMU from `before` to `now` (`None` until a frame has been predicted).
+    pre: Option<Preintegration>,
+    /// The chain's covariance at the switch (the switch inflates the tracker's).
+    cov: Matrix15,
+    /// The brightness relative to the keyframe left, at the switch.
+    brightness: (f64, f64),
+}
+
+impl ChainShadow {
+    fn new(x: FrameState, cov: Matrix15, brightness: (f64, f64)) -> Self {
+        ChainShadow {
+            before: x,
+            now: x,
+            pre: None,
+            cov,
+            brightness,
+        }
+    }
+
+    /// Predicts the next frame by the IMU `pre` (from the current frame to it).
+    fn advance(&mut self, pre: &Preintegration) {
+        self.before = self.now;
+        self.now.nav = pre.predict(&self.before.nav, &self.before.bias);
+        self.pre = Some(pre.clone());
+    }
+}
 
 /// The drift correction a switch to a stored keyframe makes (`Odometry::switch_correction`).
 #[derive(Clone, Copy, Debug, PartialEq)]
