@@ -118,6 +118,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         reuse: cfg.reuse.clone(),
         keyframe_bundle: cfg.keyframe_bundle.clone(),
         scale_observer: cfg.scale_observer,
+        gyro_alignment: cfg.gyro_alignment.clone(),
         depth: match a.depth {
             DepthArg::Gt => DepthSource::GroundTruth,
             DepthArg::Semidense => DepthSource::Semidense,

@@ -53,6 +53,7 @@ impl ImuNoise {
 }
 
 pub mod flight_scale;
+pub mod gyro_alignment;
 pub mod integration;
 
 pub use integration::{ImuBias, NavState, Preintegration, propagate};

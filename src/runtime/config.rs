@@ -5,6 +5,7 @@ use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::odometry::BootstrapConfig;
 use super::scale_observer::ScaleObserverConfig;
+use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::mapping::semidense::SemidenseConfig;
 use crate::smoother::WindowConfig;
@@ -32,6 +33,9 @@ pub struct Config {
     pub keyframe_bundle: KeyframeBundleConfig,
     /// `[scale_observer]`: the map scale measured against the IMU in flight.
     pub scale_observer: ScaleObserverConfig,
+    /// `[gyro_alignment]`: the rotation between the gyro's axes and the camera's body frame,
+    /// estimated in flight.
+    pub gyro_alignment: GyroAlignmentConfig,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -126,6 +130,21 @@ impl Config {
                 "map_scale_rebuilt_std",
                 self.window.map_scale_rebuilt_std,
             ),
+            (
+                "gyro_alignment",
+                "pair_std_rad",
+                self.gyro_alignment.pair_std_rad,
+            ),
+            (
+                "gyro_alignment",
+                "prior_std_rad",
+                self.gyro_alignment.prior_std_rad,
+            ),
+            (
+                "gyro_alignment",
+                "bias_prior_std_rad_s",
+                self.gyro_alignment.bias_prior_std_rad_s,
+            ),
         ];
         for (table, key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -135,6 +154,15 @@ impl Config {
                     at(table, key)
                 ));
             }
+        }
+        let r = self.gyro_alignment.initial_rotation_deg;
+        if !r.iter().all(|v| v.is_finite() && v.abs() <= 10.0) {
+            return Err(format!(
+                "{}[gyro_alignment] initial_rotation_deg = {r:?}: each component must be within \
+                 −10 … 10 degrees (a mounting error, not a different mounting: change the \
+                 camera extrinsic for that)",
+                at("gyro_alignment", "initial_rotation_deg")
+            ));
         }
         let w = &self.window;
         for (key, v, max) in [
@@ -213,6 +241,15 @@ mod tests {
         );
         let e = Config::parse("[window]\nmap_scale_step_std = 0.0\n").unwrap_err();
         assert!(e.contains("line 2") && e.contains("must be > 0"), "{e}");
+        let e = Config::parse("[gyro_alignment]\n\ninitial_rotation_deg = [0.0, 12.0, 0.0]\n")
+            .unwrap_err();
+        assert!(
+            e.contains("line 3") && e.contains("[gyro_alignment] initial_rotation_deg"),
+            "{e}"
+        );
+        let c =
+            Config::parse("[gyro_alignment]\ninitial_rotation_deg = [0.3, 0.0, -1.3]\n").unwrap();
+        assert_eq!(c.gyro_alignment.initial_rotation_deg, [0.3, 0.0, -1.3]);
     }
 
     #[test]

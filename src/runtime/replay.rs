@@ -12,6 +12,7 @@ use super::mapping_worker::MappingOutput;
 use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, OdometryStats, Phase, Rig};
 use super::scale_observer::ScaleObserverConfig;
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
+use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
 use crate::mapping::semidense::SemidenseConfig;
@@ -53,6 +54,7 @@ pub struct ReplayOptions {
     pub reuse: ReuseConfig,
     pub keyframe_bundle: KeyframeBundleConfig,
     pub scale_observer: ScaleObserverConfig,
+    pub gyro_alignment: GyroAlignmentConfig,
     pub depth: DepthSource,
     pub start: StartMode,
     /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
@@ -118,6 +120,7 @@ impl Default for ReplayOptions {
             reuse: ReuseConfig::default(),
             keyframe_bundle: KeyframeBundleConfig::default(),
             scale_observer: ScaleObserverConfig::default(),
+            gyro_alignment: GyroAlignmentConfig::default(),
             depth: DepthSource::Semidense,
             start: StartMode::Static,
             realtime: false,
@@ -275,6 +278,7 @@ fn replay_full(
         reuse: opts.reuse.clone(),
         keyframe_bundle: opts.keyframe_bundle.clone(),
         scale_observer: opts.scale_observer,
+        gyro_alignment: opts.gyro_alignment.clone(),
         realtime: opts.realtime,
     };
     let rig = Rig {

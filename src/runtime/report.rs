@@ -201,6 +201,18 @@ pub struct ReplayReport {
     /// leaning by ~2°, see docs/odometry-log.md, *The accelerometer bias against the ground
     /// truth*).
     pub accel_bias_error_m_s2: Option<f64>,
+    /// `[gyro_alignment]`: the rotation applied to the gyro at the end (`log(R_x)`, gyro axes →
+    /// the camera's body frame, degrees), the last estimate and its std per component, the RMS
+    /// of the pairs' residuals at it, the pairs it rests on, the offered pairs dropped as gross
+    /// errors, and when the estimate was first applied in flight (`apply`; s after the first
+    /// frame).
+    pub gyro_alignment_deg: [f64; 3],
+    pub gyro_alignment_estimate_deg: Option<[f64; 3]>,
+    pub gyro_alignment_std_deg: Option<[f64; 3]>,
+    pub gyro_alignment_residual_rms_deg: Option<f64>,
+    pub gyro_alignment_pairs: usize,
+    pub gyro_alignment_rejected: usize,
+    pub gyro_alignment_applied_from_s: Option<f64>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -284,6 +296,7 @@ impl ReplayReport {
             (Some(a), Some(b)) => b.t.secs_since(a.t),
             _ => 0.0,
         };
+        let g = &out.odometry.gyro_alignment;
         ReplayReport {
             frames_in: out.frames_in,
             frames_tracked: out.frames.len() - flagged,
@@ -411,6 +424,16 @@ impl ReplayReport {
             }),
             accel_bias_gt_m_s2: None,
             accel_bias_error_m_s2: None,
+            gyro_alignment_deg: g.applied_rad.map(f64::to_degrees),
+            gyro_alignment_estimate_deg: g.estimate_rad.map(|v| v.map(f64::to_degrees)),
+            gyro_alignment_std_deg: g.estimate_std_rad.map(|v| v.map(f64::to_degrees)),
+            gyro_alignment_residual_rms_deg: g.residual_rms_rad.map(f64::to_degrees),
+            gyro_alignment_pairs: g.pairs,
+            gyro_alignment_rejected: g.rejected,
+            gyro_alignment_applied_from_s: g
+                .first_applied_t
+                .zip(out.frames.first())
+                .map(|(t, f)| t.secs_since(f.t)),
             eval: None,
         }
     }
@@ -679,6 +702,28 @@ impl ReplayReport {
                     "estimated ({:+.3}, {:+.3}, {:+.3}), implied by gt ({:+.3}, {:+.3}, {:+.3}), \
                      off by {:.3} m/s²",
                     e[0], e[1], e[2], g[0], g[1], g[2], d
+                ),
+            );
+        }
+        if let Some(e) = self.gyro_alignment_estimate_deg {
+            let a = self.gyro_alignment_deg;
+            let sd = self.gyro_alignment_std_deg.unwrap_or([f64::NAN; 3]);
+            row(
+                "gyro alignment",
+                format!(
+                    "applied ({:+.2}, {:+.2}, {:+.2})°, estimate ({:+.2}, {:+.2}, {:+.2})° ± \
+                     ({:.2}, {:.2}, {:.2})° from {} pairs ({} dropped)",
+                    a[0],
+                    a[1],
+                    a[2],
+                    e[0],
+                    e[1],
+                    e[2],
+                    sd[0],
+                    sd[1],
+                    sd[2],
+                    self.gyro_alignment_pairs,
+                    self.gyro_alignment_rejected
                 ),
             );
         }

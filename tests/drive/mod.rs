@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 use vidslam::dataset::AslDataset;
 use vidslam::image::Image;
+use vidslam::imu::ImuSample;
 use vidslam::runtime::odometry::{Odometry, OdometryConfig, OdometryFrame, Rig};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::time::TimeNs;
@@ -33,12 +34,23 @@ pub fn render_builtin(dir: PathBuf, seconds: f64, seed: u64) -> PathBuf {
 pub fn feed(
     dir: &Path,
     cfg: OdometryConfig,
+    before: impl FnMut(&mut Odometry, usize, TimeNs) -> Option<Image<u8>>,
+    after: impl FnMut(usize, &OdometryFrame),
+) -> Odometry {
+    feed_imu_mapped(dir, cfg, |s| s, before, after)
+}
+
+/// [`feed`] with every IMU sample passed through `map` first (a sensor turned, biased…).
+pub fn feed_imu_mapped(
+    dir: &Path,
+    cfg: OdometryConfig,
+    map: impl Fn(ImuSample) -> ImuSample,
     mut before: impl FnMut(&mut Odometry, usize, TimeNs) -> Option<Image<u8>>,
     mut after: impl FnMut(usize, &OdometryFrame),
 ) -> Odometry {
     let ds = AslDataset::open(dir).unwrap();
     let frames: Vec<_> = ds.frames().unwrap().map(Result::unwrap).collect();
-    let imu: Vec<_> = ds.imu_samples().unwrap().map(Result::unwrap).collect();
+    let imu: Vec<_> = ds.imu_samples().unwrap().map(|s| map(s.unwrap())).collect();
     let mut odo = Odometry::new(
         cfg,
         Rig {

@@ -66,6 +66,7 @@ use super::scale_observer::{ScaleObserver, ScaleObserverConfig, ScaleSample};
 use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
+use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::scale_alignment::AlignmentPrior;
 use crate::imu::static_init::{
     StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent, rest_covariance,
@@ -84,9 +85,13 @@ use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::sync::Arc;
 
+mod gyro_link;
 mod keyframe_returns;
 mod mapper_link;
 mod refinement_jobs;
+
+pub use gyro_link::GyroAlignmentStats;
+use gyro_link::GyroLink;
 
 /// Static frames remembered to pick the first keyframe before the back-dated motion onset.
 const STATIC_FRAMES_KEPT: usize = 16;
@@ -408,6 +413,8 @@ pub struct OdometryConfig {
     pub reuse: ReuseConfig,
     pub keyframe_bundle: KeyframeBundleConfig,
     pub scale_observer: ScaleObserverConfig,
+    /// `[gyro_alignment]` ([`crate::imu::gyro_alignment`]).
+    pub gyro_alignment: GyroAlignmentConfig,
     /// Real-time mode: never wait for the mapper (non-deterministic).
     pub realtime: bool,
 }
@@ -506,6 +513,8 @@ pub struct OdometryStats {
     /// With `[window] map_scale_gain`: each correction `c` of a keyframe map's log-scale (its
     /// depths scaled by `e^{−c}` when the next keyframe was started).
     pub window_map_scale_corrections: Vec<f64>,
+    /// The gyro's axes turned onto the camera's body frame in flight (`[gyro_alignment]`).
+    pub gyro_alignment: GyroAlignmentStats,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
@@ -689,6 +698,8 @@ pub struct Odometry {
     mapper_kf_pose: Option<(u32, Isometry3<f64>)>,
     /// The tracked trajectory of the last seconds, for the map scale (`[scale_observer]`).
     scale: ScaleObserver,
+    /// The in-flight gyro alignment (`[gyro_alignment]`, `gyro_link.rs`).
+    gyro: GyroLink,
     /// The position change tracking made on the current frame (before any correction).
     tracked_step_m: Option<Vector3<f64>>,
     /// The next frame is tracked against another keyframe than the last one was (a stored one,
@@ -749,6 +760,7 @@ impl Odometry {
             refine_outstanding: 0,
             imu: VecDeque::with_capacity(4096),
             scale: ScaleObserver::new(cfg.scale_observer),
+            gyro: GyroLink::new(cfg.gyro_alignment.clone()),
             tracked_step_m: None,
             keyframe_jump: false,
             phase: Phase::WaitingForStart,
@@ -843,6 +855,9 @@ impl Odometry {
 
     /// Feeds one IMU sample (time ordered).
     pub fn push_imu(&mut self, s: &ImuSample) {
+        // The gyro turned onto the camera's body frame (`[gyro_alignment]`: by
+        // `initial_rotation_deg`, and with `apply` by the estimate as it firms up).
+        let s = &self.gyro.correct(s);
         if let Some(StaticEvent::MotionOnset(o)) = self.detector.push(s)
             && self.stats.onset_t.is_none()
         {
@@ -1151,6 +1166,24 @@ impl Odometry {
             }
             self.history.push_front(frame);
             self.history.truncate(self.cfg.bootstrap.history_frames);
+            if let Some((id, r_kf)) = self.tracker.keyframe().map(|kf| {
+                (
+                    kf.id,
+                    *kf.t_world_cam.rotation.to_rotation_matrix().matrix(),
+                )
+            }) {
+                let r_cam = *self
+                    .tracker
+                    .t_world_cam()
+                    .rotation
+                    .to_rotation_matrix()
+                    .matrix();
+                self.observe_gyro_alignment(t, id, &r_kf, &r_cam);
+            } else {
+                self.gyro.drop_anchor();
+            }
+        } else {
+            self.gyro.drop_anchor();
         }
         match (self.phase, self.tracked_step_m.take()) {
             (Phase::Tracking, Some(step)) => self.scale.push(result.state, step),
@@ -1167,6 +1200,7 @@ impl Odometry {
 
     /// Stops the mapping thread and returns what it built.
     pub fn finish(mut self) -> (OdometryStats, MappingOutput) {
+        self.record_gyro_alignment();
         if let Some(r) = self.refiner.take() {
             r.finish();
         }
