@@ -99,6 +99,11 @@ impl GyroLink {
         }
     }
 
+    /// `log(R_x)` now turning the samples, rad.
+    pub(super) fn applied_rad(&self) -> [f64; 3] {
+        self.applied_rad.into()
+    }
+
     pub(super) fn drop_anchor(&mut self) {
         self.anchor = None;
     }

@@ -715,6 +715,8 @@ pub struct Odometry {
 
 impl Odometry {
     pub fn new(cfg: OdometryConfig, rig: Rig) -> Self {
+        let gyro = GyroLink::new(cfg.gyro_alignment.clone());
+        let gyro_applied_rad = gyro.applied_rad();
         let vignette_gain = rig
             .vignette
             .filter(|_| cfg.tracking.correct_vignetting)
@@ -760,7 +762,7 @@ impl Odometry {
             refine_outstanding: 0,
             imu: VecDeque::with_capacity(4096),
             scale: ScaleObserver::new(cfg.scale_observer),
-            gyro: GyroLink::new(cfg.gyro_alignment.clone()),
+            gyro,
             tracked_step_m: None,
             keyframe_jump: false,
             phase: Phase::WaitingForStart,
@@ -808,6 +810,10 @@ impl Odometry {
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
                 vignette_corrected: vignette_gain.is_some(),
+                gyro_alignment: GyroAlignmentStats {
+                    applied_rad: gyro_applied_rad,
+                    ..Default::default()
+                },
                 ..Default::default()
             },
             window: KeyframeWindow::new(cfg.window.clone(), rig.noise),
