@@ -110,19 +110,28 @@ impl GyroLink {
 }
 
 impl Odometry {
-    /// After a frame tracked against keyframe `kf_id` (camera rotations of the keyframe and the
-    /// frame in the world): closes the pair begun on this keyframe if it is long enough, solves
-    /// and applies the estimate, and begins the next pair here.
-    pub(super) fn observe_gyro_alignment(
-        &mut self,
-        t: TimeNs,
-        kf_id: u32,
-        r_world_kf_cam: &Matrix3<f64>,
-        r_world_cam: &Matrix3<f64>,
-    ) {
+    /// After the frame at `t` was tracked: closes the pair begun on the tracker's keyframe if it
+    /// is long enough, solves and applies the estimate, and begins the next pair here (no
+    /// keyframe: the pair is dropped).
+    pub(super) fn observe_gyro_alignment(&mut self, t: TimeNs) {
         if !self.gyro.enabled() {
             return;
         }
+        let Some((kf_id, r_world_kf_cam)) = self.tracker.keyframe().map(|kf| {
+            (
+                kf.id,
+                *kf.t_world_cam.rotation.to_rotation_matrix().matrix(),
+            )
+        }) else {
+            self.gyro.drop_anchor();
+            return;
+        };
+        let r_world_cam = *self
+            .tracker
+            .t_world_cam()
+            .rotation
+            .to_rotation_matrix()
+            .matrix();
         let r_cam_body = self.rig.t_body_cam.rotation.inverse().to_rotation_matrix();
         let r_kf_body = (r_world_kf_cam * r_cam_body.matrix()).transpose()
             * (r_world_cam * r_cam_body.matrix());
@@ -130,7 +139,7 @@ impl Odometry {
         let here = Anchor {
             t,
             kf_id,
-            r_world_kf_cam: *r_world_kf_cam,
+            r_world_kf_cam,
             r_kf_body,
             bias_gyro_axes_rad_s: self.gyro.r_applied.transpose() * bias_body,
         };
@@ -139,7 +148,7 @@ impl Odometry {
             self.gyro.anchor = Some(here);
             return;
         };
-        let same_keyframe = a.kf_id == kf_id && a.r_world_kf_cam == *r_world_kf_cam;
+        let same_keyframe = a.kf_id == kf_id && a.r_world_kf_cam == r_world_kf_cam;
         if !same_keyframe {
             self.gyro.anchor = Some(here);
             return;

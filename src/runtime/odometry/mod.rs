@@ -1172,22 +1172,7 @@ impl Odometry {
             }
             self.history.push_front(frame);
             self.history.truncate(self.cfg.bootstrap.history_frames);
-            if let Some((id, r_kf)) = self.tracker.keyframe().map(|kf| {
-                (
-                    kf.id,
-                    *kf.t_world_cam.rotation.to_rotation_matrix().matrix(),
-                )
-            }) {
-                let r_cam = *self
-                    .tracker
-                    .t_world_cam()
-                    .rotation
-                    .to_rotation_matrix()
-                    .matrix();
-                self.observe_gyro_alignment(t, id, &r_kf, &r_cam);
-            } else {
-                self.gyro.drop_anchor();
-            }
+            self.observe_gyro_alignment(t);
         } else {
             self.gyro.drop_anchor();
         }
