@@ -1,7 +1,8 @@
 //! The tracker on rendered frames with ground-truth depth (issue 4 tests): the convergence basin
 //! for pose perturbations up to 5 cm / 3°, robustness to a 1.3x gain change between frames, a
-//! black frame flagged as untextured (never a NaN), and a short end-to-end replay that is deterministic and
-//! accurate, with vision visibly better than the IMU alone.
+//! black frame flagged as untextured (never a NaN), a short end-to-end replay that is deterministic
+//! and accurate, with vision visibly better than the IMU alone, and the photometric step undoing
+//! the IMU's pull on the joint solution.
 
 mod scratch;
 
@@ -280,4 +281,52 @@ fn tracking_step_output_is_identical_to_the_start_for_a_frame_tracked_against_it
     let (ep, er, _, r) = track_from(&mut tr, truth, &truth, &img);
     assert!(ep < 1e-4 && er < 1e-3, "{ep} {er}");
     assert!(r.log_gain.abs() < 1e-3 && r.offset_gray.abs() < 0.1);
+}
+
+#[test]
+fn the_photometric_step_undoes_the_imus_pull_on_the_joint_solution() {
+    // A frame tracked with a confident IMU prediction 0.05° and 2 mm off the truth: the joint
+    // solution stays near the prediction, and `photometric_step` moves it toward where the
+    // keyframe's points alone put it (the solution with an uninformative IMU term). One
+    // Gauss–Newton step with the inverse-compositional Hessian: measured, it undoes 68 % of the
+    // rotation's pull (0.035° → 0.011°) and 18 % of the translation's (0.57 → 0.47 mm).
+    let fx = fixture();
+    let mut tr = tracker_with_keyframe(&fx, 10);
+    let truth = gt_state(&fx.gt, &fx.frames[14]);
+    let img = fx.frames[14].load().unwrap();
+    let x0 = perturbed(
+        &truth,
+        Vector3::new(0.002, 0.0, 0.0),
+        Vector3::new(0.0, 0.0, 0.05f64.to_radians()),
+    );
+    let (ev_m, ev_deg, _, vision) = track_from(&mut tr, x0, &truth, &img);
+    println!("vision alone vs truth {ev_deg:.4}° {:.2} mm", ev_m * 1e3);
+    assert!(vision.flag.is_none());
+    let mut cov = Matrix15::identity() * 1e-8;
+    for k in 6..9 {
+        cov[(k, k)] = 1e-2; // velocity free: the pose alone is held
+    }
+    tr.reset_state(x0, cov);
+    let joint = tr.track(x0.nav.t, &img, &Preintegration::new(x0.nav.t, x0.bias));
+    assert!(joint.flag.is_none(), "{:?}", joint.flag);
+    let mut d = vidslam::imu::Vector15::zeros();
+    d.fixed_rows_mut::<6>(0).copy_from(&joint.photometric_step);
+    let undone = joint.state.boxplus(&d);
+    let gap = |a: &FrameState| {
+        let e = pose_of(&vision.state).inverse() * pose_of(a);
+        (e.rotation.angle().to_degrees(), e.translation.vector.norm())
+    };
+    let (pulled_deg, pulled_m) = gap(&joint.state);
+    let (undone_deg, undone_m) = gap(&undone);
+    println!(
+        "joint vs vision alone {pulled_deg:.4}° {:.2} mm; with the photometric step {undone_deg:.4}° {:.2} mm",
+        pulled_m * 1e3,
+        undone_m * 1e3
+    );
+    assert!(pulled_deg > 0.03, "the IMU did not pull: {pulled_deg}°");
+    assert!(
+        undone_deg < 0.5 * pulled_deg,
+        "{undone_deg}° of {pulled_deg}°"
+    );
+    assert!(undone_m < pulled_m, "{undone_m} m of {pulled_m} m");
 }

@@ -35,7 +35,7 @@ use crate::imu::{
     imu_residual_covariance,
 };
 use crate::time::TimeNs;
-use nalgebra::{Isometry3, Matrix6, SMatrix, SVector};
+use nalgebra::{Isometry3, Matrix6, SMatrix, SVector, Vector6};
 use std::time::Instant;
 
 /// Pyramid level whose texture decides whether a frame can be aligned (`min_textured_fraction`):
@@ -103,6 +103,12 @@ pub struct TrackResult {
     /// frame, eq. 34/36) relative to the keyframe, brightness marginalised; zero if untracked.
     /// The keyframe window uses it for the relative pose keyframe → frame.
     pub photometric_info: Matrix6<f64>,
+    /// The Gauss–Newton step of the photometric term alone from `state` (`[δθ, δt]` in the body
+    /// frame as `FrameState::boxplus`, brightness free): where the keyframe's points alone would
+    /// move the pose, i.e. the IMU's pull on the joint solution undone to first order. At the
+    /// joint optimum the photometric gradient balances the IMU's (eq. 16), so this is
+    /// `H_ph⁻¹ b_ph` at full resolution. Zero if untracked or singular.
+    pub photometric_step: Vector6<f64>,
     /// Keyframe tracked against.
     pub keyframe_id: Option<u32>,
     /// The keyframe policy asks for a new keyframe at this frame.
@@ -116,6 +122,8 @@ struct Evaluation {
     sys: BlockSystem<8, 9>,
     /// The photometric part of `sys.h_pp` (with the brightness prior).
     h_ph: SMatrix<f64, 8, 8>,
+    /// The photometric part of `sys.b_p` (with the brightness prior).
+    b_ph: SVector<f64, 8>,
     cost: f64,
     ph: Option<PhotometricSystem>,
     r_imu: Vector15,
@@ -210,6 +218,7 @@ impl Tracker {
             residual_rms_gray: f64::NAN,
             imu_chi2: 0.0,
             photometric_info: Matrix6::zeros(),
+            photometric_step: Vector6::zeros(),
             keyframe_id: self.keyframe.as_ref().map(|k| k.id),
             wants_keyframe: false,
             time_s: 0.0,
@@ -479,6 +488,7 @@ impl Tracker {
             return None;
         }
         res.photometric_info = pose_information(&fin.h_ph);
+        res.photometric_step = photometric_step(&fin.h_ph, &fin.b_ph);
         let Some(cov) = marginal_covariance(&fin.sys) else {
             res.flag = Some(FlagReason::SolverFailed);
             return None;
@@ -617,6 +627,7 @@ impl Tracker {
     ) -> Evaluation {
         let mut sys = BlockSystem::<8, 9>::zeros();
         let mut h_ph = SMatrix::<f64, 8, 8>::zeros();
+        let mut b_ph = SVector::<f64, 8>::zeros();
         let cost = self.total_cost(ph.as_ref().map(|p| p.cost), pre, xi, x, a_imu, aff, sigma2);
         let mut ph_out = None;
         if let (Some(ph), Some(kf)) = (ph, &self.keyframe) {
@@ -637,6 +648,7 @@ impl Tracker {
             sys.b_p[6] -= wa * ea;
             sys.b_p[7] -= wb * eb;
             h_ph = sys.h_pp;
+            b_ph = sys.b_p;
         } else {
             // No photometric term: keep the brightness block regular.
             sys.h_pp[(6, 6)] = 1.0;
@@ -668,6 +680,7 @@ impl Tracker {
         Evaluation {
             sys,
             h_ph,
+            b_ph,
             cost,
             ph: ph_out,
             r_imu: r,
@@ -719,6 +732,15 @@ fn pose_information(h: &SMatrix<f64, 8, 8>) -> Matrix6<f64> {
         }
         None => hpp,
     }
+}
+
+/// The pose part of `h⁻¹ b` for an 8x8 `[pose, α, β]` system (brightness free); zero if `h` is
+/// not positive definite or the step is not finite.
+fn photometric_step(h: &SMatrix<f64, 8, 8>, b: &SVector<f64, 8>) -> Vector6<f64> {
+    h.cholesky()
+        .map(|c| c.solve(b).fixed_rows::<6>(0).into_owned())
+        .filter(|d| d.iter().all(|v| v.is_finite()))
+        .unwrap_or_else(Vector6::zeros)
 }
 
 /// Covariance of the 15-state from the joint Hessian (inverse of the full 17x17, brightness

@@ -9,13 +9,17 @@
 //! its pose is moved. The gyro over the pair is integrated from the raw samples with the tracker's
 //! bias at the anchor turned into the gyro's axes, so each pair is independent of the rotation
 //! applied at the time (eq. 4 with `R_x` conjugating the product exactly).
+//!
+//! With `photometric_pairs` each frame's rotation is the tracker's solution moved by its
+//! `photometric_step`: where the keyframe's points alone put the frame, so the gyro does not pull
+//! the rotations it is compared with toward itself.
 
 use super::Odometry;
 use crate::geometry::exp_so3;
 use crate::imu::gyro_alignment::{GyroAlignment, GyroAlignmentConfig, RotationPair};
 use crate::imu::{ImuBias, ImuSample, Preintegration};
 use crate::time::TimeNs;
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Vector3, Vector6};
 use std::collections::VecDeque;
 
 /// Raw samples kept: ~10 s at 200 Hz, as the odometry's own buffer.
@@ -113,7 +117,7 @@ impl Odometry {
     /// After the frame at `t` was tracked: closes the pair begun on the tracker's keyframe if it
     /// is long enough, solves and applies the estimate, and begins the next pair here (no
     /// keyframe: the pair is dropped).
-    pub(super) fn observe_gyro_alignment(&mut self, t: TimeNs) {
+    pub(super) fn observe_gyro_alignment(&mut self, t: TimeNs, photometric_step: &Vector6<f64>) {
         if !self.gyro.enabled() {
             return;
         }
@@ -126,15 +130,19 @@ impl Odometry {
             self.gyro.drop_anchor();
             return;
         };
-        let r_world_cam = *self
+        let mut r_world_body = *self
             .tracker
-            .t_world_cam()
-            .rotation
+            .state()
+            .nav
+            .r_world_body
             .to_rotation_matrix()
             .matrix();
+        if self.gyro.alignment.config().photometric_pairs {
+            // The photometric term's own solution (`boxplus` turns on the right).
+            r_world_body *= exp_so3(&photometric_step.fixed_rows::<3>(0).into_owned());
+        }
         let r_cam_body = self.rig.t_body_cam.rotation.inverse().to_rotation_matrix();
-        let r_kf_body = (r_world_kf_cam * r_cam_body.matrix()).transpose()
-            * (r_world_cam * r_cam_body.matrix());
+        let r_kf_body = (r_world_kf_cam * r_cam_body.matrix()).transpose() * r_world_body;
         let bias_body = self.tracker.state().bias.gyro_rad_s;
         let here = Anchor {
             t,

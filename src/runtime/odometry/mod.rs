@@ -1172,7 +1172,7 @@ impl Odometry {
             }
             self.history.push_front(frame);
             self.history.truncate(self.cfg.bootstrap.history_frames);
-            self.observe_gyro_alignment(t);
+            self.observe_gyro_alignment(t, &result.photometric_step);
         } else {
             self.gyro.drop_anchor();
         }
