@@ -187,6 +187,11 @@ impl GyroAlignment {
         &self.cfg
     }
 
+    /// `initial_rotation_deg` in radians: the prior's centre.
+    pub fn initial_rotation_rad(&self) -> Vector3<f64> {
+        self.prior_rad
+    }
+
     pub fn estimate(&self) -> Option<&GyroAlignmentEstimate> {
         self.estimate.as_ref()
     }
@@ -233,7 +238,8 @@ impl GyroAlignment {
     }
 
     /// Solves for `(R_x, δb)` from all pairs kept (Gauss–Newton, `iterations` steps from the last
-    /// estimate, Huber-weighted, priors around identity and zero). `None` without pairs.
+    /// estimate, Huber-weighted, priors around `initial_rotation_deg` and zero). `None` without
+    /// pairs.
     pub fn solve(&mut self, iterations: usize) -> Option<&GyroAlignmentEstimate> {
         if self.pairs.is_empty() {
             return None;
@@ -339,6 +345,8 @@ impl GyroAlignment {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::imu::{ImuBias, Preintegration};
+    use crate::time::TimeNs;
 
     /// A pair whose gyro is turned by `r_true` from the body (ω_gyro = r_trueᵀ ω_body) and biased
     /// by `bias` (gyro axes), over `n` steps of `dt` at body rate `w_body(k)`.
@@ -350,21 +358,18 @@ mod tests {
         dt: f64,
     ) -> RotationPair {
         let mut dr_v = Matrix3::identity();
-        let mut dr_g = Matrix3::identity();
-        let mut jac = Matrix3::zeros();
+        // The odometry's own preintegration (eq. 4 and its bias Jacobian), bias 0.
+        let mut pre = Preintegration::new(TimeNs(0), ImuBias::default());
         for k in 0..n {
             let wb = w_body(k);
             dr_v *= exp_so3(&(wb * dt));
             // The gyro measures r_trueᵀ ω + bias; the tracker removed no bias (δb = bias).
             let wg = r_true.transpose() * wb + bias;
-            let step = exp_so3(&(wg * dt));
-            // d/db of Π exp((w − b) dt) at b = 0, right perturbation (eq. 40's recursion).
-            jac = step.transpose() * jac - right_jacobian(&(wg * dt)) * dt;
-            dr_g *= step;
+            pre.integrate_step(&wg, &Vector3::zeros(), dt, None);
         }
         RotationPair {
-            delta_r_gyro: dr_g,
-            d_r_d_bg: jac,
+            delta_r_gyro: pre.delta_r,
+            d_r_d_bg: pre.d_r_d_bg,
             delta_r_vision: dr_v,
         }
     }

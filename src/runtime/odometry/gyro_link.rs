@@ -70,13 +70,14 @@ pub struct GyroAlignmentStats {
 
 impl GyroLink {
     pub(super) fn new(cfg: GyroAlignmentConfig) -> Self {
-        let applied_rad = if cfg.enabled {
-            Vector3::from(cfg.initial_rotation_deg).map(f64::to_radians)
+        let alignment = GyroAlignment::new(cfg);
+        let applied_rad = if alignment.config().enabled {
+            alignment.initial_rotation_rad()
         } else {
             Vector3::zeros()
         };
         GyroLink {
-            alignment: GyroAlignment::new(cfg),
+            alignment,
             applied_rad,
             r_applied: exp_so3(&applied_rad),
             raw: VecDeque::with_capacity(RAW_SAMPLES_KEPT + 1),
