@@ -9,7 +9,8 @@
 //!    positions onto the ground-truth positions in the least-squares sense (Umeyama 1991), the same
 //!    alignment `evo_ape -a` / `-as` perform. The Sim3 scale is always computed and reported, even
 //!    when another alignment is applied, as the scale error of a monocular(-inertial) estimate.
-//! 3. [`ate`]: absolute translation error (m) and rotation error (deg) per pose after alignment.
+//! 3. [`ate`]: absolute translation error (m) and rotation error (deg) per pose after alignment;
+//!    [`body_offset`]: the part of the rotation error that is a rotation fixed in the body frame.
 //! 4. [`rpe`]: relative pose error over 1 m and 10 m of travelled ground-truth distance.
 //! 5. [`report`]: the figures as a flat, stably-keyed JSON object and a readable table;
 //!    [`plot`]: a PNG with the top view of both trajectories and the ATE over time.
@@ -19,6 +20,7 @@
 
 pub mod associate;
 pub mod ate;
+pub mod body_offset;
 pub mod imu_consistency;
 pub mod plot;
 pub mod report;
@@ -197,6 +199,7 @@ pub fn evaluate(
         absolute: &abs,
         rpe_1m: &rpe[0],
         rpe_10m: &rpe[1],
+        body_offset: body_offset::body_offset(&gt_poses, &est_aligned),
         per_pose,
     }))
 }

@@ -5,6 +5,7 @@
 
 use super::Alignment;
 use super::ate::AbsoluteErrors;
+use super::body_offset::BodyOffset;
 use super::rpe::RelativeErrors;
 use super::stats::ErrorStats;
 use crate::time::TimeNs;
@@ -39,6 +40,16 @@ pub struct EvalReport {
     pub rot_rmse_deg: f64,
     pub rot_mean_deg: f64,
     pub rot_max_deg: f64,
+    /// Constant rotation between the estimate's body frame and the ground truth's: the rotation
+    /// vector of `R_b` in `R_est ≈ R_w R_gt R_b` (world rotation `R_w` fitted with it,
+    /// [`super::body_offset`]), body frame, degrees. The signature of a camera–IMU misalignment or
+    /// of an accelerometer bias held as a tilt; `null` if it could not be fitted.
+    #[serde(default)]
+    pub rot_body_offset_deg: Option<[f64; 3]>,
+    /// Rotation RMSE once that offset and the world rotation are removed, degrees: what of
+    /// `rot_rmse_deg` is not a fixed offset of the body.
+    #[serde(default)]
+    pub rot_rmse_without_body_offset_deg: Option<f64>,
     /// RPE over 1 m of travelled ground truth (segments start at every pose); `None` (null) when
     /// the matched ground truth is shorter.
     pub rpe_1m_trans_rmse_m: Option<f64>,
@@ -104,6 +115,7 @@ pub(super) struct ReportInputs<'a> {
     pub absolute: &'a AbsoluteErrors,
     pub rpe_1m: &'a RelativeErrors,
     pub rpe_10m: &'a RelativeErrors,
+    pub body_offset: Option<BodyOffset>,
     pub per_pose: Vec<PoseError>,
 }
 
@@ -141,6 +153,13 @@ impl EvalReport {
             rot_rmse_deg: rot.rmse,
             rot_mean_deg: rot.mean,
             rot_max_deg: rot.max,
+            rot_body_offset_deg: inp.body_offset.map(|b| {
+                let d = b.body_rotation_rad.map(f64::to_degrees);
+                [d.x, d.y, d.z]
+            }),
+            rot_rmse_without_body_offset_deg: inp
+                .body_offset
+                .map(|b| b.residual_rmse_rad.to_degrees()),
             rpe_1m_trans_rmse_m: rmse(&inp.rpe_1m.trans_m),
             rpe_1m_rot_rmse_deg: rmse(&inp.rpe_1m.rot_deg),
             rpe_1m_segments: inp.rpe_1m.trans_m.len(),
@@ -227,6 +246,16 @@ impl EvalReport {
                 format!("{:.4}", self.rot_max_deg),
             ),
             (
+                "body rot offset [deg]".into(),
+                match self.rot_body_offset_deg {
+                    Some([x, y, z]) => format!(
+                        "({x:+.3}, {y:+.3}, {z:+.3}), rotation RMSE without it {}",
+                        opt(self.rot_rmse_without_body_offset_deg, 4)
+                    ),
+                    None => "n/a".to_string(),
+                },
+            ),
+            (
                 "RPE 1 m trans RMSE [m]".into(),
                 format!(
                     "{} ({} segments)",
@@ -290,6 +319,11 @@ mod tests {
             absolute: &abs,
             rpe_1m: &rpe_1m,
             rpe_10m: &RelativeErrors::default(),
+            body_offset: Some(BodyOffset {
+                body_rotation_rad: Vector3::new(0.0, 0.0, 0.02f64.to_radians()),
+                residual_rmse_rad: 0.5f64.to_radians(),
+                world_only_rmse_rad: 1.0f64.to_radians(),
+            }),
             // Ground truth along x at 0, 1, 3 m, at 0, 1, 2 s: 3 m travelled in 2 s.
             per_pose: [0.0, 1.0, 3.0]
                 .iter()
@@ -354,9 +388,11 @@ mod tests {
                 "gt_poses",
                 "matched_poses",
                 "max_dt_ms",
+                "rot_body_offset_deg",
                 "rot_max_deg",
                 "rot_mean_deg",
                 "rot_rmse_deg",
+                "rot_rmse_without_body_offset_deg",
                 "rpe_10m_rot_rmse_deg",
                 "rpe_10m_segments",
                 "rpe_10m_trans_rmse_m",
@@ -395,6 +431,10 @@ mod tests {
             "{t}"
         );
         assert!(t.contains("scale error [%]") && t.contains("2.0000"), "{t}");
+        assert!(
+            t.contains("(+0.000, +0.000, +0.020), rotation RMSE without it 0.5000"),
+            "{t}"
+        );
         let value_cols: Vec<usize> = t
             .lines()
             .map(|l| {

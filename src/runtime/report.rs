@@ -797,6 +797,14 @@ impl ReplayReport {
             row("ATE RMSE (SE3)", format!("{:.4} m", e.ate_rmse_m));
             row("ATE max", format!("{:.4} m", e.ate_max_m));
             row("rotation RMSE", format!("{:.3} deg", e.rot_rmse_deg));
+            if let (Some([x, y, z]), Some(rest)) =
+                (e.rot_body_offset_deg, e.rot_rmse_without_body_offset_deg)
+            {
+                row(
+                    "body rotation offset",
+                    format!("({x:+.2}, {y:+.2}, {z:+.2}) deg, {rest:.3} deg RMSE without it"),
+                );
+            }
             row(
                 "scale error (Sim3)",
                 format!("{:.2} % (s = {:.4})", e.scale_error_pct, e.scale),
