@@ -123,6 +123,72 @@ fn recovers_a_known_similarity_and_noise_on_v101_ground_truth() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A body-frame rotation offset on the real flight's attitudes is read back. V1_01 yaws about its
+/// up axis and tilts by a few degrees only, so the offset's part about that axis is not seen (it
+/// reads as heading) and is held at zero: what comes back is the offset off the mean body-up axis.
+#[test]
+fn reads_back_a_body_rotation_offset_off_the_up_axis_on_v101_attitudes() {
+    let Some(gt_path) = v101_groundtruth() else {
+        return;
+    };
+    let (gt, _) = Trajectory::read(&gt_path).unwrap();
+    let world = UnitQuaternion::from_euler_angles(0.02, -0.03, 0.8);
+    let offset_rad = Vector3::new(0.3, -0.5, -2.4).map(f64::to_radians);
+    let body = UnitQuaternion::from_scaled_axis(offset_rad);
+    let est = Trajectory::new(
+        gt.poses
+            .iter()
+            .step_by(10)
+            .map(|p| StampedPose {
+                t: p.t,
+                t_world_body: nalgebra::Isometry3::from_parts(
+                    (world * p.t_world_body.translation.vector).into(),
+                    world * p.t_world_body.rotation * body,
+                ),
+            })
+            .collect(),
+    );
+    // The mean body-up axis: the world's vertical seen from the body, averaged over the flight.
+    let up: Vector3<f64> = gt
+        .poses
+        .iter()
+        .step_by(10)
+        .map(|p| p.t_world_body.rotation.inverse() * Vector3::z())
+        .sum::<Vector3<f64>>()
+        .normalize();
+    let expected_deg = (offset_rad - up * up.dot(&offset_rad)).map(f64::to_degrees);
+
+    let dir = scratch_dir("eval-body-offset");
+    let est_path = dir.join("v101_turned.tum");
+    est.write(&est_path, TrajectoryFormat::Tum).unwrap();
+    let json = dir.join("r.json");
+    let out = eval_ok(
+        &gt_path,
+        &est_path,
+        &[OsStr::new("--json"), json.as_os_str()],
+    );
+    let table = String::from_utf8(out.stdout).unwrap();
+    assert!(table.contains("body rot offset [deg]"), "{table}");
+    let r = read_json(&json);
+    let got: Vec<f64> = r["rot_body_offset_deg"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let got = Vector3::new(got[0], got[1], got[2]);
+    eprintln!("body offset {got:?}, expected {expected_deg:?} (up axis {up:?})");
+    assert!(
+        (got - expected_deg).norm() < 0.1,
+        "{got:?} vs {expected_deg:?}"
+    );
+    // No world rotation explains the tilt part; with the offset, nothing is left but the
+    // unseen part about the up axis, which the flight's few degrees of tilt show as ≤ 0.1°.
+    assert!(num(&r, "rot_rmse_deg") > 1.0, "{r:?}");
+    assert!(num(&r, "rot_rmse_without_body_offset_deg") < 0.1, "{r:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `eval --gt GT --est EST EXTRA…`
 fn eval_args<'a>(gt: &'a Path, est: &'a Path, extra: &[&'a OsStr]) -> Vec<&'a OsStr> {
     let mut args = vec![
