@@ -47,28 +47,42 @@ const MAX_ITERATIONS: usize = 30;
 const STEP_TOLERANCE_RAD: f64 = 1e-12;
 
 /// Fits the world rotation and the body offset between ground-truth and estimated body poses
-/// (`t_world_body`, one pair per time). `None` with fewer than 3 pairs.
+/// (`t_world_body`, one pair per time). `None` with fewer than 3 pairs or if the fit is not
+/// finite (a non-finite pose), so a report never carries NaN.
+///
+/// # Panics
+/// If the slices differ in length (a caller bug: they come from one association).
 pub fn body_offset(gt: &[Isometry3<f64>], est: &[Isometry3<f64>]) -> Option<BodyOffset> {
-    let n = gt.len().min(est.len());
-    if n < 3 {
+    assert_eq!(gt.len(), est.len(), "one pose pair per time");
+    if gt.len() < 3 {
         return None;
     }
-    let r_gt: Vec<Matrix3<f64>> = gt[..n]
+    let rotations = |poses: &[Isometry3<f64>]| -> Vec<Matrix3<f64>> {
+        poses
+            .iter()
+            .map(|p| *p.rotation.to_rotation_matrix().matrix())
+            .collect()
+    };
+    let (r_gt, r_est) = (rotations(gt), rotations(est));
+    // (`log_so3` of a NaN matrix reads as no rotation at all: refuse it here.)
+    if r_gt
         .iter()
-        .map(|p| *p.rotation.to_rotation_matrix().matrix())
-        .collect();
-    let r_est: Vec<Matrix3<f64>> = est[..n]
-        .iter()
-        .map(|p| *p.rotation.to_rotation_matrix().matrix())
-        .collect();
-
+        .chain(&r_est)
+        .any(|r| r.iter().any(|v| !v.is_finite()))
+    {
+        return None;
+    }
     let world_only = fit(&r_gt, &r_est, false);
     let with_body = fit(&r_gt, &r_est, true);
-    Some(BodyOffset {
+    let out = BodyOffset {
         body_rotation_rad: log_so3(&with_body.r_b),
         residual_rmse_rad: with_body.rmse_rad,
         world_only_rmse_rad: world_only.rmse_rad,
-    })
+    };
+    let finite = out.body_rotation_rad.iter().all(|v| v.is_finite())
+        && out.residual_rmse_rad.is_finite()
+        && out.world_only_rmse_rad.is_finite();
+    finite.then_some(out)
 }
 
 struct Fit {
@@ -95,9 +109,9 @@ fn fit(r_gt: &[Matrix3<f64>], r_est: &[Matrix3<f64>], body: bool) -> Fit {
             g += j.transpose() * r;
         }
         if body {
-            hold_weak_body_axes(&mut h, &mut g, &log_so3(&r_b));
-            let prior = PRIOR_INFORMATION_PER_POSE * n;
             let lb = log_so3(&r_b);
+            hold_weak_body_axes(&mut h, &mut g, &lb);
+            let prior = PRIOR_INFORMATION_PER_POSE * n;
             for k in 3..6 {
                 h[(k, k)] += prior;
             }
@@ -349,8 +363,13 @@ mod tests {
     }
 
     #[test]
-    fn too_few_poses() {
+    fn too_few_poses_or_a_non_finite_one_give_none() {
         let gt = attitudes(2);
         assert!(body_offset(&gt, &gt).is_none());
+        let gt = attitudes(50);
+        let mut est = gt.clone();
+        est[7].rotation =
+            UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(f64::NAN, 0.0, 0.0, 0.0));
+        assert!(body_offset(&gt, &est).is_none());
     }
 }

@@ -42,8 +42,10 @@ pub struct EvalReport {
     pub rot_max_deg: f64,
     /// Constant rotation between the estimate's body frame and the ground truth's: the rotation
     /// vector of `R_b` in `R_est ≈ R_w R_gt R_b` (world rotation `R_w` fitted with it,
-    /// [`super::body_offset`]), body frame, degrees. The signature of a camera–IMU misalignment or
-    /// of an accelerometer bias held as a tilt; `null` if it could not be fitted.
+    /// [`super::body_offset`]), body frame, degrees; its part about a body direction the flight
+    /// barely turns the body away from (a drone's up axis, where it reads as heading) is held at
+    /// zero. The signature of a camera–IMU misalignment or of an accelerometer bias held as a
+    /// tilt; `null` if it could not be fitted (too few poses, a non-finite one).
     #[serde(default)]
     pub rot_body_offset_deg: Option<[f64; 3]>,
     /// Rotation RMSE once that offset and the world rotation are removed, degrees: what of
