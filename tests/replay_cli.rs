@@ -194,7 +194,15 @@ fn demo_over_several_seeds_writes_the_distribution() {
             "{r}"
         );
     }
-    assert!(t.contains("accel bias off"), "{t}");
+    assert!(
+        t.contains("accel bias off") && t.contains("body offset"),
+        "{t}"
+    );
+    for r in rows {
+        // 3 s of the built-in flight is the pad and the start of the climb: the body does not
+        // turn, so no body-frame offset can be told from a world rotation.
+        assert!(r["rot_body_offset_deg"].is_null(), "{r}");
+    }
     assert!(v["ate_rmse_m_median"].as_f64().is_some());
     assert_eq!(v["realtime"].as_bool(), Some(false));
     assert!(!t.contains("views skipped"), "{t}");

@@ -94,6 +94,9 @@ struct SeedRow {
     scale_error_pct: Option<f64>,
     /// The estimated accelerometer bias's distance from the one the ground truth implies, m/s².
     accel_bias_error_m_s2: Option<f64>,
+    /// The rotation fixed in the body frame between estimate and truth (`eval`'s
+    /// `rot_body_offset_deg`), body axes, degrees.
+    rot_body_offset_deg: Option<[f64; 3]>,
     resets: u32,
     tracking_ms_p99: f64,
     non_finite_poses: usize,
@@ -121,6 +124,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
                 .map(|s| s.ate_rmse_m),
             scale_error_pct: r.eval.as_ref().map(|e| e.scale_error_pct),
             accel_bias_error_m_s2: r.accel_bias_error_m_s2,
+            rot_body_offset_deg: r.eval.as_ref().and_then(|e| e.rot_body_offset_deg),
             resets: r.resets,
             tracking_ms_p99: r.tracking_ms_p99,
             non_finite_poses: r.non_finite_poses,
@@ -135,17 +139,22 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         ""
     };
     println!(
-        "\nseed   ATE RMSE (SE3)   ATE first 20 s   scale error   accel bias off   resets   tracking p99{realtime_columns}"
+        "\nseed   ATE RMSE (SE3)   ATE first 20 s   scale error   accel bias off   body offset   resets   tracking p99{realtime_columns}"
     );
     for r in &rows {
         let f = |v: Option<f64>, unit: &str| v.map_or("n/a".into(), |v| format!("{v:.3} {unit}"));
+        // The offset's angle: its axis is in seeds.json.
+        let body = r
+            .rot_body_offset_deg
+            .map(|[x, y, z]| (x * x + y * y + z * z).sqrt());
         print!(
-            "{:<6} {:>14}   {:>14}   {:>11}   {:>14}   {:>6}   {:>9.2} ms",
+            "{:<6} {:>14}   {:>14}   {:>11}   {:>14}   {:>11}   {:>6}   {:>9.2} ms",
             r.seed,
             f(r.ate_rmse_m, "m"),
             f(r.ate_rmse_first_20s_m, "m"),
             f(r.scale_error_pct, "%"),
             f(r.accel_bias_error_m_s2, "m/s²"),
+            f(body, "deg"),
             r.resets,
             r.tracking_ms_p99
         );

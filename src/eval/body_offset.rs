@@ -41,6 +41,9 @@ const PRIOR_INFORMATION_PER_POSE: f64 = 1e-6;
 /// A body direction seen with less than this fraction of the best-seen one's information is held
 /// at zero ([`hold_weak_body_axes`]).
 const WEAK_AXIS_RATIO: f64 = 0.01;
+/// Least information per pose on the best-seen body direction for an offset to be reported,
+/// 1/rad² per pose: attitudes spread by a few degrees at least.
+const MIN_INFORMATION_PER_POSE: f64 = 5e-4;
 /// Gauss–Newton iterations; each is exact to first order and the residuals are small.
 const MAX_ITERATIONS: usize = 30;
 /// Stop when the step is below this, rad.
@@ -70,6 +73,9 @@ pub fn body_offset(gt: &[Isometry3<f64>], est: &[Isometry3<f64>]) -> Option<Body
         .chain(&r_est)
         .any(|r| r.iter().any(|v| !v.is_finite()))
     {
+        return None;
+    }
+    if !turns_enough(&r_gt) {
         return None;
     }
     let world_only = fit(&r_gt, &r_est, false);
@@ -175,6 +181,18 @@ fn hold_weak_body_axes(h: &mut Matrix6<f64>, g: &mut Vector6<f64>, log_r_b: &Vec
             g_b += prior * log_r_b;
         }
     }
+}
+
+/// Whether the attitudes turn the body enough for any offset to be seen: the best-seen body
+/// direction's information per pose (with the world rotation marginalised, at the start of the
+/// fit: `I − MᵀM` for `M` the mean attitude matrix, whose eigenvalues no constant world or body
+/// rotation changes) must reach [`MIN_INFORMATION_PER_POSE`]. A vehicle on the pad, or one that
+/// only translates, shows none: every body offset is then a world rotation.
+fn turns_enough(r_gt: &[Matrix3<f64>]) -> bool {
+    let n = r_gt.len() as f64;
+    let mean: Matrix3<f64> = r_gt.iter().sum::<Matrix3<f64>>() / n;
+    let info = Matrix3::identity() - mean.transpose() * mean;
+    info.symmetric_eigen().eigenvalues.max() >= MIN_INFORMATION_PER_POSE
 }
 
 /// The residual `r = log((R_w R_gt R_b)ᵀ R_est)` and its Jacobian on `[δw, δb]` (`exp(δw) R_w`,
@@ -360,6 +378,26 @@ mod tests {
         );
         // The up-axis part reads as a heading error; the tilts leave ~1e-3 rad of it.
         assert!(off.residual_rmse_rad < 2e-3, "{off:?}");
+    }
+
+    #[test]
+    fn a_body_that_never_turns_gives_none() {
+        // Translating with the attitude held to ±0.5°.
+        let gt: Vec<Isometry3<f64>> = (0..300)
+            .map(|i| {
+                let s = i as f64 * 0.05;
+                Isometry3::from_parts(
+                    Translation3::new(s, 0.0, 0.0),
+                    UnitQuaternion::from_euler_angles(0.0087 * s.sin(), 0.0, 0.4),
+                )
+            })
+            .collect();
+        let est = turned(
+            &gt,
+            Vector3::new(0.0, 0.0, 0.2),
+            Vector3::new(0.0, 0.03, 0.0),
+        );
+        assert!(body_offset(&gt, &est).is_none());
     }
 
     #[test]

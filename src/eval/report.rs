@@ -45,7 +45,8 @@ pub struct EvalReport {
     /// [`super::body_offset`]), body frame, degrees; its part about a body direction the flight
     /// barely turns the body away from (a drone's up axis, where it reads as heading) is held at
     /// zero. The signature of a camera–IMU misalignment or of an accelerometer bias held as a
-    /// tilt; `null` if it could not be fitted (too few poses, a non-finite one).
+    /// tilt; `null` if it could not be fitted (too few poses, a non-finite one) or the body never
+    /// turned enough (a few degrees) for it to differ from a world rotation.
     #[serde(default)]
     pub rot_body_offset_deg: Option<[f64; 3]>,
     /// Rotation RMSE once that offset and the world rotation are removed, degrees: what of
