@@ -62,6 +62,7 @@ fn bench(c: &mut Criterion) {
         start: x0,
         views,
         previous: None,
+        gyro_turn_rad: nalgebra::Vector3::zeros(),
     };
     let kb = KeyframeBundleConfig::default();
     let adjust = || {

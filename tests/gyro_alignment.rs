@@ -6,46 +6,13 @@
 mod drive;
 mod scratch;
 
+use drive::{max_gap_m, positions_with_gyro_turned as run};
 use nalgebra::{Rotation3, Vector3};
-use std::path::Path;
-use vidslam::imu::ImuSample;
-use vidslam::runtime::odometry::{OdometryConfig, OdometryStats};
+use vidslam::runtime::odometry::OdometryConfig;
 
 /// The gyro's axes turned from the body by `log(R) = (0.1°, −0.2°, 0.5°)` (`ω_gyro = Rᵀ ω_body`).
 fn turned() -> Rotation3<f64> {
     Rotation3::new(Vector3::new(0.1f64, -0.2, 0.5).map(f64::to_radians))
-}
-
-/// Every frame's position and the odometry's counters; the gyro turned by `r` (`None`: as
-/// recorded).
-fn run(
-    dir: &Path,
-    cfg: OdometryConfig,
-    r: Option<Rotation3<f64>>,
-) -> (Vec<Vector3<f64>>, OdometryStats) {
-    let mut p = Vec::new();
-    let odo = drive::feed_imu_mapped(
-        dir,
-        cfg,
-        |s| match r {
-            Some(r) => ImuSample {
-                gyro_rad_s: r.inverse() * s.gyro_rad_s,
-                ..s
-            },
-            None => s,
-        },
-        |_, _, _| None,
-        |_, f| p.push(f.result.state.nav.p_world_m),
-    );
-    (p, odo.stats().clone())
-}
-
-fn max_gap_m(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).norm())
-        .fold(0.0, f64::max)
 }
 
 #[test]

@@ -71,6 +71,12 @@ pub struct Preintegration {
     pub d_p_d_ba: Matrix3<f64>,
     /// Covariance of `[δφ, δv, δp]` from the white measurement noise.
     pub cov: PreintCov,
+    /// dΔv/dφ for a gyro whose axes are turned from the accelerometer's (the body's) by
+    /// `Exp(φ)` (`ω_body = Exp(φ) ω_gyro`), at φ = 0: `Σ (ΔR_k [a_k]× − [ΔR_k a_k]×) δt`,
+    /// (m/s) per rad ([`crate::imu::misalignment`]).
+    pub d_v_d_misalignment: Matrix3<f64>,
+    /// dΔp/dφ likewise, m per rad.
+    pub d_p_d_misalignment: Matrix3<f64>,
 }
 
 impl Preintegration {
@@ -89,6 +95,8 @@ impl Preintegration {
             d_p_d_bg: Matrix3::zeros(),
             d_p_d_ba: Matrix3::zeros(),
             cov: PreintCov::zeros(),
+            d_v_d_misalignment: Matrix3::zeros(),
+            d_p_d_misalignment: Matrix3::zeros(),
         }
     }
 
@@ -156,6 +164,11 @@ impl Preintegration {
         self.d_v_d_bg -= r_mid_ahat * d_rmid_d_bg * dt_s;
         self.d_v_d_ba -= r_mid * dt_s;
         self.d_r_d_bg = dr_full.transpose() * self.d_r_d_bg - right_jacobian(&(w * dt_s)) * dt_s;
+        // A turned gyro turns the rotation history the specific force is summed through:
+        // d(Exp(φ) R Exp(φ)ᵀ a)/dφ = R [a]× − [R a]× at φ = 0.
+        let d_a_d_mis = r_mid_ahat - hat(&a_world_i);
+        self.d_p_d_misalignment += self.d_v_d_misalignment * dt_s + d_a_d_mis * (0.5 * dt_s * dt_s);
+        self.d_v_d_misalignment += d_a_d_mis * dt_s;
 
         // State (eq. 4–6).
         self.delta_p += self.delta_v * dt_s + a_world_i * (0.5 * dt_s * dt_s);

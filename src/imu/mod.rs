@@ -55,6 +55,7 @@ impl ImuNoise {
 pub mod flight_scale;
 pub mod gyro_alignment;
 pub mod integration;
+pub mod misalignment;
 
 pub use integration::{ImuBias, NavState, Preintegration, propagate};
 pub mod residual;

@@ -147,6 +147,7 @@ pub fn adjust_from_truth(
             start,
             views: view_states,
             previous: None,
+            gyro_turn_rad: nalgebra::Vector3::zeros(),
         };
         let Some(a) = bundle_adjust_keyframe(
             &rec,

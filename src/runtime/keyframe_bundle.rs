@@ -18,6 +18,7 @@
 
 use super::mapping_worker::MapFrame;
 use crate::image::{Image, Pyramid};
+use crate::imu::misalignment::turned;
 use crate::imu::{FrameState, ImuNoise, ImuSample, Preintegration};
 use crate::smoother::photometric_bundle::{
     BundleConfig, BundleView, ChainHost, HostPoints, PhotometricBundle,
@@ -91,6 +92,12 @@ pub struct KeyframeBundleConfig {
     /// seed 1 against 16 offline) and 3 of 16 runs ran away (docs/odometry-log.md, *Real-time
     /// keyframe adjustments wait for the views offline ones get*).
     pub realtime_min_views: usize,
+    /// The keyframe window's estimate of the gyro's turn (`[window] gyro_misalignment`) turns
+    /// this adjustment's IMU only once its angle is at least this, rad. The adjustment weighs the
+    /// IMU at a hundred times the tracker's information, and on a gyro that is not turned the
+    /// estimate wanders by up to ~0.15°: turned by every such wander, 3 of 24 demo flights ran
+    /// away (docs/odometry-log.md, *The keyframe window reads the gyro's turn*).
+    pub gyro_turn_min_rad: f64,
 }
 
 impl Default for KeyframeBundleConfig {
@@ -113,6 +120,7 @@ impl Default for KeyframeBundleConfig {
             previous_host_max_frames: 6,
             previous_host_velocity_std_m_s: 0.1,
             realtime_min_views: 4,
+            gyro_turn_min_rad: 0.0044,
         }
     }
 }
@@ -128,6 +136,9 @@ pub struct KeyframeRecord {
     pub views: Vec<(MapFrame, FrameState)>,
     /// The keyframe tracked when this one was started, for `[keyframe_bundle] previous_host`.
     pub previous: Option<Box<PreviousHost>>,
+    /// The gyro's turn against the body frame when the keyframe was started (`[window]
+    /// gyro_misalignment`, `ω_body = Exp(φ) ω_gyro`), rad: its IMU is turned by it.
+    pub gyro_turn_rad: Vector3<f64>,
 }
 
 /// The keyframe tracked when a new one was started, and the frames tracked against it up to the
@@ -260,7 +271,12 @@ pub fn bundle_adjust_keyframe(
         imu,
         &noise,
         inflate,
-    );
+    )
+    .into_iter()
+    .map(|p| match rec.gyro_turn_rad == Vector3::zeros() {
+        true => p,
+        false => turned(&p, &rec.gyro_turn_rad),
+    });
     let between_pyrs: Vec<Pyramid> = between
         .iter()
         .map(|(f, _)| Pyramid::from_u8(&f.image, levels))

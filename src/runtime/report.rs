@@ -213,6 +213,10 @@ pub struct ReplayReport {
     pub gyro_alignment_pairs: usize,
     pub gyro_alignment_rejected: usize,
     pub gyro_alignment_applied_from_s: Option<f64>,
+    /// `[window] gyro_misalignment`: the gyro's turn against the body frame as the keyframe
+    /// window estimated it at the end (`log` of `ω_body = R ω_gyro`), degrees.
+    #[serde(default)]
+    pub window_gyro_misalignment_deg: Option<[f64; 3]>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -424,6 +428,10 @@ impl ReplayReport {
             }),
             accel_bias_gt_m_s2: None,
             accel_bias_error_m_s2: None,
+            window_gyro_misalignment_deg: out
+                .odometry
+                .window_gyro_misalignment_rad
+                .map(|v| [v.x, v.y, v.z].map(f64::to_degrees)),
             gyro_alignment_deg: g.applied_rad.map(f64::to_degrees),
             gyro_alignment_estimate_deg: g.estimate_rad.map(|v| v.map(f64::to_degrees)),
             gyro_alignment_std_deg: g.estimate_std_rad.map(|v| v.map(f64::to_degrees)),
@@ -703,6 +711,12 @@ impl ReplayReport {
                      off by {:.3} m/s²",
                     e[0], e[1], e[2], g[0], g[1], g[2], d
                 ),
+            );
+        }
+        if let Some(e) = self.window_gyro_misalignment_deg {
+            row(
+                "gyro turn (window)",
+                format!("({:+.2}, {:+.2}, {:+.2})°", e[0], e[1], e[2]),
             );
         }
         if let Some(e) = self.gyro_alignment_estimate_deg {

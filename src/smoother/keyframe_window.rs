@@ -17,18 +17,26 @@
 //! keyframe, so the IMU reads the maps' scale over the whole window and the odometry corrects the
 //! map tracked by it (`map_scale_gain`).
 //!
+//! With `gyro_misalignment` the gyro's turn against the body frame, `ω_body = Exp(φ) ω_gyro`
+//! ([`crate::imu::misalignment`]), is one more unknown shared by every IMU factor: each factor's
+//! preintegration is turned by φ, and the relative poses (the camera's rotations) tell φ from the
+//! keyframes' attitudes. Without it a gyro mounted a few tenths of a degree askew turns the
+//! keyframes onto its own axes, and the tilt that follows takes the accelerometer's gravity into
+//! the velocity. φ is kept through marginalisation (it is never marginalised) and restarts.
+//!
 //! State increment per keyframe in the order of eq. 11, `[δθ, δt, δv, δbω, δba]`, then λ with
-//! `map_scale`.
+//! `map_scale`; after all keyframes, φ's 3 rows with `gyro_misalignment`.
 
 use super::relative_pose::RelativePose;
 use crate::geometry::log_so3;
 use crate::imu::imu_jacobian_j;
+use crate::imu::misalignment::{d_residual_d_misalignment, turned};
 use crate::imu::{
     FrameState, ImuNoise, Matrix15, Preintegration, Vector15, imu_residual,
     imu_residual_covariance, residual::imu_jacobian_i,
 };
 use crate::time::TimeNs;
-use nalgebra::{DMatrix, DVector, Isometry3};
+use nalgebra::{DMatrix, DVector, Isometry3, SMatrix, SVector, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::ops::AddAssign;
@@ -82,6 +90,20 @@ pub struct WindowConfig {
     /// gravity the window held before the loss anchor the new map's scale. Off: the window
     /// restarts at the new map from the dead-reckoned state.
     pub keep_across_rebuild: bool,
+    /// Estimate the gyro's turn against the body frame, `ω_body = Exp(φ) ω_gyro`
+    /// ([`crate::imu::misalignment`]), as an unknown shared by every IMU factor of the window
+    /// and kept through marginalisation and restarts: a gyro turned by a few tenths of a degree
+    /// otherwise turns the window's keyframes onto its own axes (docs/odometry-log.md, *The
+    /// keyframe window reads the gyro's turn*).
+    pub gyro_misalignment: bool,
+    /// Prior standard deviation of φ per axis about zero (and at every window restart about the
+    /// estimate then), rad.
+    pub gyro_misalignment_prior_std_rad: f64,
+    /// The same about the body's up axis (at the attitude of the window's start): a flight turns
+    /// about it, which shows the gyro's turn about the other two axes but hardly its turn about
+    /// this one, and a turn about the axis a vehicle turns about costs little. Left at the wider
+    /// σ, the estimate there took up other errors (0.6° in 2 s on a demo render), rad.
+    pub gyro_misalignment_up_std_rad: f64,
     /// Standard deviation of a rebuilt map's λ about the λ before the loss (its depths come
     /// from a dead-reckoned baseline or are guessed, unrelated to the maps before).
     pub map_scale_rebuilt_std: f64,
@@ -106,6 +128,9 @@ impl Default for WindowConfig {
             map_scale_gain: 0.5,
             map_scale_max_step: 0.05,
             keep_across_rebuild: true,
+            gyro_misalignment: true,
+            gyro_misalignment_prior_std_rad: 0.035,
+            gyro_misalignment_up_std_rad: 0.0017,
             map_scale_rebuilt_std: 0.5,
             keep_across_rebuild_max_s: 5.0,
         }
@@ -137,13 +162,15 @@ struct Node {
 }
 
 /// Gaussian prior on the first `lin.len()` nodes: `E(δ) = ½ δᵀ H δ − gᵀ δ`, `δ = x ⊟ lin` (per
-/// node its 15 state rows, then with `map_scale` its λ).
+/// node its 15 state rows, then with `map_scale` its λ), then with `gyro_misalignment` φ's 3
+/// rows.
 #[derive(Clone, Debug)]
 struct Prior {
     h: DMatrix<f64>,
     g: DVector<f64>,
     lin: Vec<FrameState>,
     lin_log_scale: Vec<f64>,
+    lin_phi: Vector3<f64>,
 }
 
 /// The window's unknowns: each node's state and map log-scale.
@@ -151,6 +178,8 @@ struct Prior {
 struct Unknowns {
     states: Vec<FrameState>,
     log_scales: Vec<f64>,
+    /// The gyro's turn φ, rad (zero without `gyro_misalignment`).
+    phi: Vector3<f64>,
 }
 
 /// What one [`KeyframeWindow::solve`] did.
@@ -168,6 +197,8 @@ pub struct KeyframeWindow {
     noise: ImuNoise,
     nodes: VecDeque<Node>,
     prior: Option<Prior>,
+    /// The gyro's turn φ as last solved, rad.
+    phi: Vector3<f64>,
 }
 
 /// `x ⊟ lin` in the increment convention of [`FrameState::boxplus`].
@@ -194,7 +225,29 @@ impl KeyframeWindow {
             noise,
             nodes: VecDeque::new(),
             prior: None,
+            phi: Vector3::zeros(),
         }
+    }
+
+    /// The gyro's turn against the body frame as the window estimates it, `ω_body = Exp(φ)
+    /// ω_gyro`, rad (zero without `gyro_misalignment`).
+    pub fn gyro_misalignment_rad(&self) -> Vector3<f64> {
+        self.phi
+    }
+
+    /// Unknowns shared by the whole window after the nodes: φ's 3 with `gyro_misalignment`.
+    fn extra(&self) -> usize {
+        if self.cfg.gyro_misalignment { 3 } else { 0 }
+    }
+
+    /// Information of φ's prior for a body at attitude `x`: `gyro_misalignment_prior_std_rad`
+    /// across its up axis, `gyro_misalignment_up_std_rad` about it.
+    fn phi_prior_h(&self, x: &FrameState) -> nalgebra::Matrix3<f64> {
+        let u = x.nav.r_world_body.inverse() * Vector3::z();
+        let uu = u * u.transpose();
+        let across = self.cfg.gyro_misalignment_prior_std_rad.max(1e-6).powi(-2);
+        let up = self.cfg.gyro_misalignment_up_std_rad.max(1e-6).powi(-2);
+        (nalgebra::Matrix3::identity() - uu) * across + uu * up
     }
 
     pub fn len(&self) -> usize {
@@ -218,17 +271,21 @@ impl KeyframeWindow {
             .cholesky()
             .map(|c| c.inverse())
             .unwrap_or_else(|| Matrix15::identity() * 1e6);
-        let b = self.block();
-        let mut hp = DMatrix::zeros(b, b);
+        let (b, e) = (self.block(), self.extra());
+        let mut hp = DMatrix::zeros(b + e, b + e);
         hp.view_mut((0, 0), (15, 15)).copy_from(&h);
         if b == 16 {
             hp[(15, 15)] = self.cfg.map_scale_initial_std.max(1e-6).powi(-2);
         }
+        if e == 3 {
+            hp.view_mut((b, b), (3, 3)).copy_from(&self.phi_prior_h(&x));
+        }
         self.prior = Some(Prior {
             h: hp,
-            g: DVector::zeros(b),
+            g: DVector::zeros(b + e),
             lin: vec![x],
             lin_log_scale: vec![0.0],
+            lin_phi: self.phi,
         });
         self.nodes.push_back(Node {
             id,
@@ -308,7 +365,8 @@ impl KeyframeWindow {
             // δv' = R δv: H' = T H Tᵀ, g' = T g with T block-diagonal.
             let r = c.rotation.to_rotation_matrix().into_inner();
             let m = p.lin.len();
-            let mut t = DMatrix::<f64>::identity(b * m, b * m);
+            let d = p.h.nrows(); // b·m, then φ's rows (body frame: unchanged)
+            let mut t = DMatrix::<f64>::identity(d, d);
             for k in 0..m {
                 t.view_mut((b * k + 6, b * k + 6), (3, 3)).copy_from(&r);
             }
@@ -369,6 +427,7 @@ impl KeyframeWindow {
         Unknowns {
             states: self.nodes.iter().map(|n| n.state).collect(),
             log_scales: self.nodes.iter().map(|n| n.log_scale).collect(),
+            phi: self.phi,
         }
     }
 
@@ -405,6 +464,11 @@ impl KeyframeWindow {
                 log_scales: (0..n)
                     .map(|k| x.log_scales[k] + if b == 16 { dx[b * k + 15] } else { 0.0 })
                     .collect(),
+                phi: if self.extra() == 3 {
+                    x.phi + Vector3::new(dx[b * n], dx[b * n + 1], dx[b * n + 2])
+                } else {
+                    x.phi
+                },
             };
             let (h2, rhs2, cost2) = self.linearise(&cand);
             summary.iterations += 1;
@@ -430,6 +494,7 @@ impl KeyframeWindow {
             node.state = s;
             node.log_scale = l;
         }
+        self.phi = x.phi;
         summary
     }
 
@@ -447,30 +512,47 @@ impl KeyframeWindow {
     ) -> (DMatrix<f64>, DVector<f64>, f64) {
         let states = &x.states;
         let n = states.len();
-        let b = self.block();
-        let mut h = DMatrix::zeros(b * n, b * n);
-        let mut rhs = DVector::zeros(b * n);
+        let (b, e) = (self.block(), self.extra());
+        let of = b * n; // φ's rows
+        let mut h = DMatrix::zeros(b * n + e, b * n + e);
+        let mut rhs = DVector::zeros(b * n + e);
         let mut cost = 0.0;
         if let Some(p) = &self.prior {
             let m = p.lin.len().min(n);
-            let mut d = DVector::zeros(b * m);
+            let mut d = DVector::zeros(b * m + e);
             for (k, (xk, lin)) in states.iter().zip(&p.lin).take(m).enumerate() {
                 d.rows_mut(b * k, 15).copy_from(&boxminus(xk, lin));
                 if b == 16 {
                     d[b * k + 15] = x.log_scales[k] - p.lin_log_scale[k];
                 }
             }
+            if e == 3 {
+                d.rows_mut(b * m, 3).copy_from(&(x.phi - p.lin_phi));
+            }
             let hd = &p.h * &d;
             cost += 0.5 * d.dot(&hd) - p.g.dot(&d);
-            h.view_mut((0, 0), (b * m, b * m)).add_assign(&p.h);
             let r = &p.g - hd;
-            rhs.rows_mut(0, b * m).add_assign(&r);
+            // The prior's rows: its m nodes, then φ, which sits after all n nodes here.
+            let at = |k: usize| if k < b * m { k } else { of + k - b * m };
+            for c in 0..b * m + e {
+                rhs[at(c)] += r[c];
+                for q in 0..b * m + e {
+                    h[(at(q), at(c))] += p.h[(q, c)];
+                }
+            }
         }
         for j in 1..factor_nodes.min(n) {
             let i = j - 1;
             let node = &self.nodes[j];
             let (xi, xj) = (&states[i], &states[j]);
-            if let Some(pre) = &node.imu {
+            if let Some(pre0) = &node.imu {
+                let turned_pre;
+                let pre = if e == 3 {
+                    turned_pre = turned(pre0, &x.phi);
+                    &turned_pre
+                } else {
+                    pre0
+                };
                 let mut pre_w = pre.clone();
                 pre_w.cov *= self.cfg.imu_noise_scale.powi(2);
                 let mut cov =
@@ -487,6 +569,19 @@ impl KeyframeWindow {
                 let jj = imu_jacobian_j(pre, xi, xj);
                 cost += 0.5 * r.dot(&(w * r));
                 add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
+                if e == 3 {
+                    let jf = d_residual_d_misalignment(pre0, &x.phi, xi, xj);
+                    add_shared(
+                        &mut h,
+                        &mut rhs,
+                        [b * i, b * j],
+                        of,
+                        [&ji, &jj],
+                        &jf,
+                        &w,
+                        &r,
+                    );
+                }
             }
             if let Some(vis) = &node.visual {
                 let mut w = self.visual_weight(&vis.information);
@@ -568,11 +663,11 @@ impl KeyframeWindow {
         if n < 2 {
             return;
         }
-        let b = self.block();
+        let (b, e) = (self.block(), self.extra());
         // The prior and the factors touching node 0 (those between nodes 0 and 1); the factors
-        // among the others stay factors.
+        // among the others stay factors. φ is kept (it comes last).
         let (h, rhs, _) = self.linearise_parts(&x, 2);
-        let r = b * (n - 1);
+        let r = b * (n - 1) + e;
         let hmm = h.view((0, 0), (b, b)).into_owned();
         let hmr = h.view((0, b), (b, r)).into_owned();
         let hrr = h.view((b, b), (r, r)).into_owned();
@@ -583,9 +678,15 @@ impl KeyframeWindow {
             hmm_reg[(k, k)] += 1e-9;
         }
         let Some(chol) = hmm_reg.cholesky() else {
-            // Degenerate: drop the node without information.
+            // Degenerate: drop the node without information (φ keeps a prior about its value).
             self.nodes.pop_front();
-            self.prior = None;
+            self.prior = (e == 3).then(|| Prior {
+                h: DMatrix::from_fn(3, 3, |r, c| self.phi_prior_h(&x.states[1])[(r, c)]),
+                g: DVector::zeros(3),
+                lin: Vec::new(),
+                lin_log_scale: Vec::new(),
+                lin_phi: x.phi,
+            });
             return;
         };
         let hmm_inv_hmr = chol.solve(&hmr);
@@ -601,8 +702,34 @@ impl KeyframeWindow {
             g: gp,
             lin: x.states[1..].to_vec(),
             lin_log_scale: x.log_scales[1..].to_vec(),
+            lin_phi: x.phi,
         });
     }
+}
+
+#[allow(clippy::too_many_arguments)]
+/// Adds the columns of a factor's unknown shared by the window (at offset `of`, `C` wide) to
+/// the system [`add_pair`] built for its two states (offsets `os`, Jacobians `js`).
+fn add_shared<const R: usize, const C: usize>(
+    h: &mut DMatrix<f64>,
+    rhs: &mut DVector<f64>,
+    os: [usize; 2],
+    of: usize,
+    js: [&SMatrix<f64, R, 15>; 2],
+    jf: &SMatrix<f64, R, C>,
+    w: &SMatrix<f64, R, R>,
+    r: &SVector<f64, R>,
+) {
+    let wjf = w * jf;
+    h.view_mut((of, of), (C, C))
+        .add_assign(&(jf.transpose() * wjf));
+    for (o, j) in os.into_iter().zip(js) {
+        let hsf = j.transpose() * wjf;
+        h.view_mut((o, of), (15, C)).add_assign(&hsf);
+        h.view_mut((of, o), (C, 15)).add_assign(&hsf.transpose());
+    }
+    rhs.rows_mut(of, C)
+        .add_assign(&(-(jf.transpose() * (w * r))));
 }
 
 #[allow(clippy::too_many_arguments)]

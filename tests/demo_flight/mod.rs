@@ -56,16 +56,26 @@ pub fn preintegrate_with_accel_bias(
     pre
 }
 
-/// A window that trusts the relative poses and the (noise-free) IMU at face value.
-pub fn window(max_keyframes: usize) -> KeyframeWindow {
-    let cfg = WindowConfig {
+/// The settings of a window that trusts the relative poses and the (noise-free) IMU at face
+/// value.
+pub fn window_config(max_keyframes: usize) -> WindowConfig {
+    WindowConfig {
         visual_rotation_information_scale: 1.0,
         visual_translation_information_scale: 1.0,
         imu_noise_scale: 1.0,
         max_keyframes,
         ..WindowConfig::default()
-    };
+    }
+}
+
+/// A window with `cfg` and the EuRoC IMU's noise.
+pub fn window_with(cfg: WindowConfig) -> KeyframeWindow {
     KeyframeWindow::new(cfg, ImuNoise::euroc_adis16448())
+}
+
+/// A window that trusts the relative poses and the (noise-free) IMU at face value.
+pub fn window(max_keyframes: usize) -> KeyframeWindow {
+    window_with(window_config(max_keyframes))
 }
 
 /// Relative pose `a → b` at 1 mrad / 1 cm.

@@ -72,3 +72,39 @@ pub fn feed_imu_mapped(
     }
     odo
 }
+
+/// Every frame's position and the odometry's counters, with the gyro's axes turned from the
+/// body by `r` (`ω_gyro = Rᵀ ω_body`; `None`: as recorded).
+pub fn positions_with_gyro_turned(
+    dir: &Path,
+    cfg: OdometryConfig,
+    r: Option<nalgebra::Rotation3<f64>>,
+) -> (
+    Vec<nalgebra::Vector3<f64>>,
+    vidslam::runtime::odometry::OdometryStats,
+) {
+    let mut p = Vec::new();
+    let odo = feed_imu_mapped(
+        dir,
+        cfg,
+        |s| match r {
+            Some(r) => ImuSample {
+                gyro_rad_s: r.inverse() * s.gyro_rad_s,
+                ..s
+            },
+            None => s,
+        },
+        |_, _, _| None,
+        |_, f| p.push(f.result.state.nav.p_world_m),
+    );
+    (p, odo.stats().clone())
+}
+
+/// The largest distance between two equally long position sequences, m.
+pub fn max_gap_m(a: &[nalgebra::Vector3<f64>], b: &[nalgebra::Vector3<f64>]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).norm())
+        .fold(0.0, f64::max)
+}

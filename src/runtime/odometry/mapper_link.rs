@@ -111,6 +111,7 @@ impl Odometry {
                     start: *self.tracker.state(),
                     views: Vec::new(),
                     previous,
+                    gyro_turn_rad: self.adjustment_gyro_turn_rad(),
                 }
             });
         self.mapper_kf_pose = Some((id, frame.t_world_cam));
@@ -480,6 +481,7 @@ impl Odometry {
             start: x,
             views: Vec::new(),
             previous: None,
+            gyro_turn_rad: self.adjustment_gyro_turn_rad(),
         });
         self.reinit_kf = Some(id);
         self.stats.reinit_guessed_keyframes += 1;

@@ -449,6 +449,9 @@ pub struct OdometryStats {
     /// First maps started again in flight that joined the keyframe window across the loss
     /// (`[window] keep_across_rebuild`) instead of restarting it.
     pub window_kept_across_rebuild: u32,
+    /// `[window] gyro_misalignment`: the gyro's turn against the body frame as the keyframe
+    /// window last solved it (`ω_body = Exp(φ) ω_gyro`), rad.
+    pub window_gyro_misalignment_rad: Option<Vector3<f64>>,
     pub keyframes: usize,
     /// Times the tracker returned to a stored keyframe instead of starting a new one.
     pub keyframe_reuses: usize,
@@ -1275,6 +1278,10 @@ impl Odometry {
         let mut pre = Preintegration::new(t0, self.tracker.state().bias);
         // `integrate` finds the samples bracketing the interval itself.
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
+        if self.cfg.window.gyro_misalignment {
+            // The gyro turned onto the body frame as the keyframe window reads it.
+            pre = crate::imu::misalignment::turned(&pre, &self.gyro_turn_rad());
+        }
         self.last_t = Some(t);
         let x0 = *self.tracker.state();
         if let Some(s) = self.chain_shadow.as_mut() {
@@ -1431,6 +1438,28 @@ impl Odometry {
         self.stats.window_kept_across_rebuild += 1;
     }
 
+    /// The gyro's turn against the body frame as the keyframe window reads it (`[window]
+    /// gyro_misalignment`; zero when off), rad: the tracker's and the keyframe adjustment's IMU
+    /// are turned by it.
+    fn gyro_turn_rad(&self) -> Vector3<f64> {
+        if self.cfg.window.gyro_misalignment {
+            self.window.gyro_misalignment_rad()
+        } else {
+            Vector3::zeros()
+        }
+    }
+
+    /// The turn the keyframe adjustment's IMU gets: [`Odometry::gyro_turn_rad`] once it is at
+    /// least `[keyframe_bundle] gyro_turn_min_rad`, zero before.
+    fn adjustment_gyro_turn_rad(&self) -> Vector3<f64> {
+        let phi = self.gyro_turn_rad();
+        if phi.norm() >= self.cfg.keyframe_bundle.gyro_turn_min_rad {
+            phi
+        } else {
+            Vector3::zeros()
+        }
+    }
+
     /// Whether the IMU buffer still reaches back to keyframe state `from`.
     fn imu_buffered_since(&self, from: &FrameState) -> bool {
         self.imu.front().is_some_and(|s| s.t <= from.nav.t)
@@ -1515,6 +1544,9 @@ impl Odometry {
         let started = std::time::Instant::now();
         self.window.solve();
         let solve_s = started.elapsed().as_secs_f64();
+        if self.cfg.window.gyro_misalignment {
+            self.stats.window_gyro_misalignment_rad = Some(self.window.gyro_misalignment_rad());
+        }
         self.stats.window_solve_s.push(solve_s);
         // The frame's tracking-thread time includes the window it triggered.
         result.time_s += solve_s;
