@@ -65,7 +65,10 @@ fn a_return_that_fails_its_probation_leaves_the_chain_as_it_was() {
     assert_eq!(a.keyframe_id, b.keyframe_id);
     assert!(dp_m < 1e-6, "position {dp_m} m off");
     assert!(dr_rad < 1e-6, "rotation {dr_rad} rad off");
-    assert!(dv_m_s < 1e-6, "velocity {dv_m_s} m/s off");
+    // The velocity, which one frame determines least, to a few µm/s of rounding: 0.8 µm/s with
+    // `[window] gyro_misalignment` off, 1.9 µm/s with it on (the tracker's IMU is turned by the
+    // window's estimate, one more product per frame).
+    assert!(dv_m_s < 5e-6, "velocity {dv_m_s} m/s off");
     assert!(faulty.iter().all(|f| f.result.state.is_finite()));
     assert_eq!(faulty.last().map(|f| f.resets), Some(0));
 }
