@@ -84,6 +84,26 @@ fn wrong_tilt_velocity_and_bias_guesses_are_corrected() {
     );
 }
 
+/// Keyframe `k` at `t`, its guess placed by the relative pose `z` from the previous estimate
+/// `prev_est` (as the tracker does), pushed with `pre` and solved; returns the newest estimate.
+fn push_chained(
+    w: &mut KeyframeWindow,
+    k: u32,
+    prev_est: &FrameState,
+    t: vidslam::time::TimeNs,
+    pre: vidslam::imu::Preintegration,
+    z: vidslam::smoother::RelativePose,
+) -> FrameState {
+    let guess = pose_of(prev_est) * z.t_i_j;
+    let mut g = *prev_est;
+    g.nav.t = t;
+    g.nav.p_world_m = guess.translation.vector;
+    g.nav.r_world_body = guess.rotation;
+    w.push(k, g, pre, Some(z));
+    w.solve();
+    *w.newest().unwrap().1
+}
+
 /// Noisy relative poses (2 mm, 1 mrad), initial guesses chained from the previous estimate (as
 /// the tracker does), 100 keyframes, the gyro's turn estimated or not: returns the newest state
 /// after every solve.
@@ -109,15 +129,8 @@ fn chained(max_keyframes: usize, gyro_misalignment: bool) -> Vec<FrameState> {
             Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.002,
             Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.001,
         );
-        let guess = pose_of(&prev_est) * z.t_i_j;
-        let mut g = prev_est;
-        g.nav.t = t;
-        g.nav.p_world_m = guess.translation.vector;
-        g.nav.r_world_body = guess.rotation;
-        w.push(k, g, pre, Some(z));
-        w.solve();
+        prev_est = push_chained(&mut w, k, &prev_est, t, pre, z);
         prev_true = xt;
-        prev_est = *w.newest().unwrap().1;
         out.push(prev_est);
     }
     out
@@ -438,15 +451,8 @@ fn run_turned_gyro(estimate: bool, phi_true: &Vector3<f64>) -> (f64, Vector3<f64
         let xt = truth(&sp, t);
         let pre = preintegrate_turned_gyro(&sp, phi_true, &prev_est, t);
         let z = relative(&prev_true, &xt);
-        let guess = pose_of(&prev_est) * z.t_i_j;
-        let mut g = prev_est;
-        g.nav.t = t;
-        g.nav.p_world_m = guess.translation.vector;
-        g.nav.r_world_body = guess.rotation;
-        w.push(k, g, pre, Some(z));
-        w.solve();
+        prev_est = push_chained(&mut w, k, &prev_est, t, pre, z);
         prev_true = xt;
-        prev_est = *w.newest().unwrap().1;
         if k > 60 {
             worst_tilt = worst_tilt.max(tilt_err_deg(&prev_est, &xt));
         }

@@ -273,9 +273,12 @@ pub fn bundle_adjust_keyframe(
         inflate,
     )
     .into_iter()
-    .map(|p| match rec.gyro_turn_rad == Vector3::zeros() {
-        true => p,
-        false => turned(&p, &rec.gyro_turn_rad),
+    .map(|p| {
+        if rec.gyro_turn_rad == Vector3::zeros() {
+            p
+        } else {
+            turned(&p, &rec.gyro_turn_rad)
+        }
     });
     let between_pyrs: Vec<Pyramid> = between
         .iter()

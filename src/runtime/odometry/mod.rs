@@ -1278,9 +1278,10 @@ impl Odometry {
         let mut pre = Preintegration::new(t0, self.tracker.state().bias);
         // `integrate` finds the samples bracketing the interval itself.
         pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
-        if self.cfg.window.gyro_misalignment {
+        let phi = self.gyro_turn_rad();
+        if phi != Vector3::zeros() {
             // The gyro turned onto the body frame as the keyframe window reads it.
-            pre = crate::imu::misalignment::turned(&pre, &self.gyro_turn_rad());
+            pre = crate::imu::misalignment::turned(&pre, &phi);
         }
         self.last_t = Some(t);
         let x0 = *self.tracker.state();
