@@ -325,7 +325,6 @@ mod tests {
             body_offset: Some(BodyOffset {
                 body_rotation_rad: Vector3::new(0.0, 0.0, 0.02f64.to_radians()),
                 residual_rmse_rad: 0.5f64.to_radians(),
-                world_only_rmse_rad: 1.0f64.to_radians(),
             }),
             // Ground truth along x at 0, 1, 3 m, at 0, 1, 2 s: 3 m travelled in 2 s.
             per_pose: [0.0, 1.0, 3.0]

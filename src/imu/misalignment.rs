@@ -13,7 +13,7 @@
 //! derivative with respect to φ (additive increments).
 
 use super::integration::Preintegration;
-use super::residual::{FrameState, block, imu_residual};
+use super::residual::{FrameState, Vector15, block};
 use crate::geometry::{exp_so3, right_jacobian, right_jacobian_inv};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -33,8 +33,8 @@ pub fn turned(pre: &Preintegration, phi: &Vector3<f64>) -> Preintegration {
     out
 }
 
-/// d r / dφ of eq. 13's residual for the gyro turned by `Exp(phi)` (`r = imu_residual(turned(pre,
-/// phi), xi, xj)`), additive increments of `phi`.
+/// d r / dφ of eq. 13's residual `r = imu_residual(&turned(pre, phi), xi, xj)` for the gyro
+/// turned by `Exp(phi)` (passed in: the caller has it), additive increments of `phi`.
 ///
 /// Rotation rows: with `ΔR_c` the gyro's bias-corrected rotation, `Exp(φ + δ) ≈ Exp(φ)
 /// Exp(J_r(φ) δ)` and `Exp(u) ΔR_c Exp(−u) ≈ ΔR_c Exp((ΔR_cᵀ − I) u)`, so
@@ -43,10 +43,10 @@ pub fn turned(pre: &Preintegration, phi: &Vector3<f64>) -> Preintegration {
 pub fn d_residual_d_misalignment(
     pre: &Preintegration,
     phi: &Vector3<f64>,
+    r: &Vector15,
     xi: &FrameState,
     xj: &FrameState,
 ) -> SMatrix<f64, 15, 3> {
-    let r = imu_residual(&turned(pre, phi), xi, xj);
     let r_rot: Vector3<f64> = r.fixed_rows::<3>(block::ROT).into();
     let dbg = xj.bias.gyro_rad_s - pre.bias.gyro_rad_s;
     let dr_c = pre.delta_r * exp_so3(&(pre.d_r_d_bg * dbg));
@@ -68,6 +68,7 @@ pub fn d_residual_d_misalignment(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::imu::residual::imu_residual;
     use crate::imu::{ImuBias, ImuNoise, ImuSample, NavState};
     use crate::time::TimeNs;
     use nalgebra::{UnitQuaternion, Vector3};
@@ -169,7 +170,8 @@ mod tests {
         xj.nav.p_world_m += Vector3::new(0.01, -0.02, 0.005);
         xj.bias.gyro_rad_s += Vector3::new(1e-3, 0.0, -1e-3);
         let phi = Vector3::new(0.01, -0.02, 0.015);
-        let j = d_residual_d_misalignment(&pre, &phi, &xi, &xj);
+        let r = imu_residual(&turned(&pre, &phi), &xi, &xj);
+        let j = d_residual_d_misalignment(&pre, &phi, &r, &xi, &xj);
         let h = 1e-6;
         for c in 0..3 {
             let mut d = Vector3::zeros();

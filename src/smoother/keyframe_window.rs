@@ -570,7 +570,7 @@ impl KeyframeWindow {
                 cost += 0.5 * r.dot(&(w * r));
                 add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
                 if e == 3 {
-                    let jf = d_residual_d_misalignment(pre0, &x.phi, xi, xj);
+                    let jf = d_residual_d_misalignment(pre0, &x.phi, &r, xi, xj);
                     add_shared(
                         &mut h,
                         &mut rhs,
@@ -681,7 +681,7 @@ impl KeyframeWindow {
             // Degenerate: drop the node without information (φ keeps a prior about its value).
             self.nodes.pop_front();
             self.prior = (e == 3).then(|| Prior {
-                h: DMatrix::from_fn(3, 3, |r, c| self.phi_prior_h(&x.states[1])[(r, c)]),
+                h: DMatrix::from_column_slice(3, 3, self.phi_prior_h(&x.states[1]).as_slice()),
                 g: DVector::zeros(3),
                 lin: Vec::new(),
                 lin_log_scale: Vec::new(),
