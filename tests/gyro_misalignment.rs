@@ -66,4 +66,14 @@ fn the_window_reads_a_gyro_mounted_askew_and_the_poses_stay_with_the_recorded_gy
     assert!(err.y.abs() < 0.15 && err.z.abs() < 0.15, "{est_deg:?}°");
     assert!(err.x.abs() < 0.4, "{est_deg:?}°");
     assert!(zero_deg.norm() < 0.2, "{zero_deg:?}°");
+    // Every window solve left its estimate in the history (`OUT/window_gyro_turn.csv`), in time
+    // order, the last one the reported one; the flight kept one window throughout.
+    let h = &s_turned_on.window_gyro_misalignment_history;
+    assert!(h.len() > 10, "{} solves", h.len());
+    assert!(h.windows(2).all(|p| p[0].0 < p[1].0));
+    assert_eq!(
+        Some(h.last().unwrap().1),
+        s_turned_on.window_gyro_misalignment_rad
+    );
+    assert_eq!(s_turned_on.window_restarts, 0);
 }

@@ -434,30 +434,51 @@ fn preintegrate_turned_gyro(
 /// `phi_true`; returns the worst tilt error of the newest keyframe over the last 40 solves, deg,
 /// and the window's φ at the end.
 fn run_turned_gyro(estimate: bool, phi_true: &Vector3<f64>) -> (f64, Vector3<f64>) {
-    let sp = flight();
     let cfg = WindowConfig {
         gyro_misalignment: estimate,
         imu_noise_scale: 1.0,
         ..WindowConfig::default()
     };
+    let (tilt, phi, _) = run_turned_gyro_with(cfg, 100, |_| *phi_true, None);
+    (tilt, phi)
+}
+
+/// As [`run_turned_gyro`] over `keyframes` keyframes with window settings `cfg`, the gyro turned
+/// by `phi_true(k)` for keyframe `k`, and the window restarted at the estimate of keyframe
+/// `restart_after` (as the odometry does after a loss). Also returns φ just before the restart.
+fn run_turned_gyro_with(
+    cfg: WindowConfig,
+    keyframes: u32,
+    phi_true: impl Fn(u32) -> Vector3<f64>,
+    restart_after: Option<u32>,
+) -> (f64, Vector3<f64>, Vector3<f64>) {
+    let sp = flight();
     let mut w = KeyframeWindow::new(cfg, ImuNoise::euroc_adis16448());
     let t0 = sp.start().add_ns(5_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());
     let (mut prev_true, mut prev_est) = (x0, x0);
     let mut worst_tilt = 0.0f64;
-    for k in 1..=100u32 {
+    let mut phi_at_restart = Vector3::zeros();
+    for k in 1..=keyframes {
         let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
         let xt = truth(&sp, t);
-        let pre = preintegrate_turned_gyro(&sp, phi_true, &prev_est, t);
+        if restart_after == Some(k - 1) {
+            phi_at_restart = w.gyro_misalignment_rad();
+            w.reset(k, prev_est, &prior_cov());
+            prev_est = *w.newest().unwrap().1;
+            prev_true = xt;
+            continue;
+        }
+        let pre = preintegrate_turned_gyro(&sp, &phi_true(k), &prev_est, t);
         let z = relative(&prev_true, &xt);
         prev_est = push_chained(&mut w, k, &prev_est, t, pre, z);
         prev_true = xt;
-        if k > 60 {
+        if k + 40 > keyframes {
             worst_tilt = worst_tilt.max(tilt_err_deg(&prev_est, &xt));
         }
     }
-    (worst_tilt, w.gyro_misalignment_rad())
+    (worst_tilt, w.gyro_misalignment_rad(), phi_at_restart)
 }
 
 #[test]
@@ -486,4 +507,44 @@ fn the_window_reads_a_turned_gyro_and_keeps_the_attitude_of_the_relative_poses()
     // A gyro that is not turned reads (close to) no turn.
     let (_, phi_zero) = run_turned_gyro(true, &Vector3::zeros());
     assert!(phi_zero.norm().to_degrees() < 0.02, "{phi_zero:?}");
+}
+
+#[test]
+fn a_restarted_window_keeps_what_it_knew_of_the_gyro_turn() {
+    // 12 s with the gyro turned, a restart (as after a loss), then 4 s of a gyro that is not
+    // turned: new evidence after the restart. Keeping φ's information across the restart, the
+    // estimate moves as 4 s of evidence against 12 s would move it; starting over from the wide
+    // prior, the new evidence alone decides it.
+    let phi = Vector3::new(0.2f64, -0.3, 0.6).map(f64::to_radians);
+    let run = |keep: bool| {
+        let cfg = WindowConfig {
+            imu_noise_scale: 1.0,
+            gyro_misalignment_keep_information: keep,
+            ..WindowConfig::default()
+        };
+        let (_, end, before) = run_turned_gyro_with(
+            cfg,
+            64,
+            |k| if k <= 48 { phi } else { Vector3::zeros() },
+            Some(48),
+        );
+        ((end - before).norm().to_degrees(), before)
+    };
+    let (moved_kept_deg, before) = run(true);
+    let (moved_fresh_deg, _) = run(false);
+    println!("φ moved {moved_kept_deg}° kept, {moved_fresh_deg}° starting over");
+    // Before the restart the turn is read (across the up axis).
+    let err_deg = (before - phi).map(f64::to_degrees);
+    assert!(
+        err_deg.x.abs() < 0.1 && err_deg.z.abs() < 0.1,
+        "{err_deg:?}"
+    );
+    assert!(
+        moved_fresh_deg > 0.3,
+        "the new evidence must pull: {moved_fresh_deg}°"
+    );
+    assert!(
+        moved_kept_deg < 0.5 * moved_fresh_deg,
+        "kept {moved_kept_deg}°, starting over {moved_fresh_deg}°"
+    );
 }

@@ -354,6 +354,19 @@ fn a_covered_lens_in_flight_resumes_on_the_keyframe_and_keeps_the_accuracy() {
         (unrefined.odometry.resets, unrefined.odometry.resumes),
         (1, 0)
     );
+    // The new first map joins the keyframe window through the loss (`[window]
+    // keep_across_rebuild`); without that the window starts over there, and says so.
+    let joined = |o: &vidslam::runtime::ReplayOutput| {
+        (
+            o.odometry.window_kept_across_rebuild,
+            o.odometry.window_restarts,
+        )
+    };
+    assert_eq!(joined(&unrefined), (1, 0));
+    let mut restart_opts = rebuild_opts.clone();
+    restart_opts.window.keep_across_rebuild = false;
+    let restarted = replay(&dir, &restart_opts, &mut |_, _| {}).unwrap();
+    assert_eq!(joined(&restarted), (0, 1));
     // A new first map needs a baseline: tracked again later than by resuming, and still within
     // the take-off's flight.
     let rebuilt = unrefined.recoveries();

@@ -200,6 +200,15 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         }
         std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
     }
+    if !out.odometry.window_gyro_misalignment_history.is_empty() {
+        let p = a.out.join("window_gyro_turn.csv");
+        let mut csv = String::from("t_ns,x_deg,y_deg,z_deg\n");
+        for (t, phi) in &out.odometry.window_gyro_misalignment_history {
+            let d = phi.map(f64::to_degrees);
+            csv.push_str(&format!("{},{:.4},{:.4},{:.4}\n", t.0, d.x, d.y, d.z));
+        }
+        std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
+    }
     let csv_path = a.out.join("frames.csv");
     std::fs::write(&csv_path, frames_csv(&out))
         .with_context(|| format!("writing {}", csv_path.display()))?;

@@ -101,6 +101,9 @@ pub struct ReplayReport {
     /// First maps started in flight that joined the keyframe window through the loss instead of
     /// restarting it (`[window] keep_across_rebuild`).
     pub window_kept_across_rebuild: u32,
+    /// Times the keyframe window restarted in flight (a loss, a return to a stored keyframe it
+    /// could not join, a gap in the buffered IMU).
+    pub window_restarts: u32,
     /// Longest time from a loss to tracking again, s (`None`: no loss recovered).
     pub recovery_s_max: Option<f64>,
     /// Lost and not tracking again when the replay ended: for this long, s (an in-flight first
@@ -362,6 +365,7 @@ impl ReplayReport {
             relocalisations: out.odometry.relocalisations,
             reinit_guessed_keyframes: out.odometry.reinit_guessed_keyframes,
             window_kept_across_rebuild: out.odometry.window_kept_across_rebuild,
+            window_restarts: out.odometry.window_restarts,
             recovery_s_max: recoveries.recovered_s.iter().copied().reduce(f64::max),
             unrecovered_s: recoveries.unrecovered_s,
             mapping_jobs_dropped: out.odometry.jobs_dropped,
@@ -626,6 +630,7 @@ impl ReplayReport {
                 }
             ),
         );
+        row("window restarts", self.window_restarts.to_string());
         if self.recovery_s_max.is_some() || self.unrecovered_s.is_some() {
             let longest = self
                 .recovery_s_max

@@ -104,6 +104,11 @@ pub struct WindowConfig {
     /// this one, and a turn about the axis a vehicle turns about costs little. Left at the wider
     /// σ, the estimate there took up other errors (0.6° in 2 s on a demo render), rad.
     pub gyro_misalignment_up_std_rad: f64,
+    /// At a restart of the window (a loss, a return it cannot join) φ's prior is the information
+    /// the window held on it (its nodes Schur-complemented out), centred on the estimate, instead
+    /// of the fresh `gyro_misalignment_prior_std_rad`: the estimate does not start over, and
+    /// swing by a degree, at every restart.
+    pub gyro_misalignment_keep_information: bool,
     /// Standard deviation of a rebuilt map's λ about the λ before the loss (its depths come
     /// from a dead-reckoned baseline or are guessed, unrelated to the maps before).
     pub map_scale_rebuilt_std: f64,
@@ -131,6 +136,7 @@ impl Default for WindowConfig {
             gyro_misalignment: true,
             gyro_misalignment_prior_std_rad: 0.035,
             gyro_misalignment_up_std_rad: 0.0017,
+            gyro_misalignment_keep_information: true,
             map_scale_rebuilt_std: 0.5,
             keep_across_rebuild_max_s: 5.0,
         }
@@ -250,6 +256,28 @@ impl KeyframeWindow {
         (nalgebra::Matrix3::identity() - uu) * across + uu * up
     }
 
+    /// φ's information in the window as it stands: the whole system linearised at the current
+    /// unknowns with every node's rows Schur-complemented out (`None` with an empty window, without
+    /// `gyro_misalignment`, or if the nodes' block is singular).
+    fn phi_information(&self) -> Option<nalgebra::Matrix3<f64>> {
+        if self.extra() != 3 || self.nodes.is_empty() {
+            return None;
+        }
+        let x = self.unknowns();
+        let (h, _, _) = self.linearise(&x);
+        let m = h.nrows() - 3;
+        let mut hnn = h.view((0, 0), (m, m)).into_owned();
+        for k in 0..m {
+            hnn[(k, k)] += 1e-9;
+        }
+        let hnf = h.view((0, m), (m, 3)).into_owned();
+        let hff = h.view((m, m), (3, 3)).into_owned();
+        let marg = hff - hnf.transpose() * hnn.cholesky()?.solve(&hnf);
+        let marg = nalgebra::Matrix3::from_iterator(marg.iter().copied());
+        let marg = (marg + marg.transpose()) * 0.5;
+        marg.cholesky().map(|_| marg)
+    }
+
     pub fn len(&self) -> usize {
         self.nodes.len()
     }
@@ -266,7 +294,6 @@ impl KeyframeWindow {
     /// Restarts the window at keyframe `id` with state `x` and covariance `cov` (bootstrap, or a
     /// re-initialisation after tracking loss); its map's λ starts at 0.
     pub fn reset(&mut self, id: u32, x: FrameState, cov: &Matrix15) {
-        self.nodes.clear();
         let h = cov
             .cholesky()
             .map(|c| c.inverse())
@@ -278,8 +305,16 @@ impl KeyframeWindow {
             hp[(15, 15)] = self.cfg.map_scale_initial_std.max(1e-6).powi(-2);
         }
         if e == 3 {
-            hp.view_mut((b, b), (3, 3)).copy_from(&self.phi_prior_h(&x));
+            let fresh = self.phi_prior_h(&x);
+            let kept = if self.cfg.gyro_misalignment_keep_information {
+                self.phi_information().filter(|h| h.trace() > fresh.trace())
+            } else {
+                None
+            };
+            hp.view_mut((b, b), (3, 3))
+                .copy_from(&kept.unwrap_or(fresh));
         }
+        self.nodes.clear();
         self.prior = Some(Prior {
             h: hp,
             g: DVector::zeros(b + e),

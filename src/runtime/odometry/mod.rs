@@ -449,9 +449,15 @@ pub struct OdometryStats {
     /// First maps started again in flight that joined the keyframe window across the loss
     /// (`[window] keep_across_rebuild`) instead of restarting it.
     pub window_kept_across_rebuild: u32,
+    /// Times the keyframe window restarted at a keyframe in flight (after the bootstrap's first):
+    /// at a loss, a return to a stored keyframe it cannot join, or a gap in the buffered IMU.
+    pub window_restarts: u32,
     /// `[window] gyro_misalignment`: the gyro's turn against the body frame as the keyframe
     /// window last solved it (`ω_body = Exp(φ) ω_gyro`), rad.
     pub window_gyro_misalignment_rad: Option<Vector3<f64>>,
+    /// The same after every window solve, as (newest keyframe's time, φ in rad)
+    /// (`OUT/window_gyro_turn.csv`): how the estimate settles over a flight.
+    pub window_gyro_misalignment_history: Vec<(TimeNs, Vector3<f64>)>,
     pub keyframes: usize,
     /// Times the tracker returned to a stored keyframe instead of starting a new one.
     pub keyframe_reuses: usize,
@@ -1477,6 +1483,9 @@ impl Odometry {
     /// Restarts the keyframe window at the keyframe about to be started, from the tracker's
     /// state and covariance.
     fn reset_window(&mut self) {
+        if !self.window.is_empty() {
+            self.stats.window_restarts += 1;
+        }
         let x = *self.tracker.state();
         let cov = *self.tracker.covariance();
         self.window.reset(self.next_kf_id, x, &cov);
@@ -1546,7 +1555,9 @@ impl Odometry {
         self.window.solve();
         let solve_s = started.elapsed().as_secs_f64();
         if self.cfg.window.gyro_misalignment {
-            self.stats.window_gyro_misalignment_rad = Some(self.window.gyro_misalignment_rad());
+            let phi = self.window.gyro_misalignment_rad();
+            self.stats.window_gyro_misalignment_rad = Some(phi);
+            self.stats.window_gyro_misalignment_history.push((t, phi));
         }
         self.stats.window_solve_s.push(solve_s);
         // The frame's tracking-thread time includes the window it triggered.
