@@ -102,7 +102,7 @@ pub struct ReplayReport {
     /// restarting it (`[window] keep_across_rebuild`).
     pub window_kept_across_rebuild: u32,
     /// Times the keyframe window restarted in flight (a loss, a return to a stored keyframe it
-    /// could not join, a gap in the buffered IMU).
+    /// could not join, a gap in the buffered IMU, a solution that is not finite).
     pub window_restarts: u32,
     /// Longest time from a loss to tracking again, s (`None`: no loss recovered).
     pub recovery_s_max: Option<f64>,

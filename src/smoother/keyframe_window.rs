@@ -292,7 +292,9 @@ impl KeyframeWindow {
     }
 
     /// Restarts the window at keyframe `id` with state `x` and covariance `cov` (bootstrap, or a
-    /// re-initialisation after tracking loss); its map's λ starts at 0.
+    /// re-initialisation after tracking loss); its map's λ starts at 0. φ keeps its estimate, held
+    /// by the information the window had on it (`gyro_misalignment_keep_information`, when that
+    /// says more than the fresh prior) or by the fresh prior.
     pub fn reset(&mut self, id: u32, x: FrameState, cov: &Matrix15) {
         let h = cov
             .cholesky()

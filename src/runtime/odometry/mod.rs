@@ -450,7 +450,8 @@ pub struct OdometryStats {
     /// (`[window] keep_across_rebuild`) instead of restarting it.
     pub window_kept_across_rebuild: u32,
     /// Times the keyframe window restarted at a keyframe in flight (after the bootstrap's first):
-    /// at a loss, a return to a stored keyframe it cannot join, or a gap in the buffered IMU.
+    /// at a loss, a return to a stored keyframe it cannot join, a gap in the buffered IMU, or a
+    /// solution that is not finite.
     pub window_restarts: u32,
     /// `[window] gyro_misalignment`: the gyro's turn against the body frame as the keyframe
     /// window last solved it (`ω_body = Exp(φ) ω_gyro`), rad.
