@@ -33,7 +33,7 @@ fn the_window_reads_a_gyro_mounted_askew_and_the_poses_stay_with_the_recorded_gy
     let turned = Some(Rotation3::new(turn_rad()));
     // Off: the turned gyro's poses run off.
     let (p_ref, s_ref) = run(&dir, with_estimate(false), None);
-    assert!(s_ref.window_gyro_misalignment_rad.is_none());
+    assert!(s_ref.window_gyro_misalignment_rad().is_none());
     let (p_turned, _) = run(&dir, with_estimate(false), turned);
     let off_m = max_gap_m(&p_turned, &p_ref);
     // On (the default): the recorded gyro reads (close to) no turn, the turned one its turn, and
@@ -43,11 +43,11 @@ fn the_window_reads_a_gyro_mounted_askew_and_the_poses_stay_with_the_recorded_gy
     let (p_turned_on, s_turned_on) = run(&dir, with_estimate(true), turned);
     let on_m = max_gap_m(&p_turned_on, &p_on);
     let zero_deg = s_on
-        .window_gyro_misalignment_rad
+        .window_gyro_misalignment_rad()
         .unwrap()
         .map(f64::to_degrees);
     let est_deg = s_turned_on
-        .window_gyro_misalignment_rad
+        .window_gyro_misalignment_rad()
         .unwrap()
         .map(f64::to_degrees);
     println!(
@@ -73,7 +73,7 @@ fn the_window_reads_a_gyro_mounted_askew_and_the_poses_stay_with_the_recorded_gy
     assert!(h.windows(2).all(|p| p[0].0 < p[1].0));
     assert_eq!(
         Some(h.last().unwrap().1),
-        s_turned_on.window_gyro_misalignment_rad
+        s_turned_on.window_gyro_misalignment_rad()
     );
     assert_eq!(s_turned_on.window_restarts, 0);
 }

@@ -434,7 +434,7 @@ impl ReplayReport {
             accel_bias_error_m_s2: None,
             window_gyro_misalignment_deg: out
                 .odometry
-                .window_gyro_misalignment_rad
+                .window_gyro_misalignment_rad()
                 .map(|v| [v.x, v.y, v.z].map(f64::to_degrees)),
             gyro_alignment_deg: g.applied_rad.map(f64::to_degrees),
             gyro_alignment_estimate_deg: g.estimate_rad.map(|v| v.map(f64::to_degrees)),

@@ -263,18 +263,9 @@ impl KeyframeWindow {
         if self.extra() != 3 || self.nodes.is_empty() {
             return None;
         }
-        let x = self.unknowns();
-        let (h, _, _) = self.linearise(&x);
-        let m = h.nrows() - 3;
-        let mut hnn = h.view((0, 0), (m, m)).into_owned();
-        for k in 0..m {
-            hnn[(k, k)] += 1e-9;
-        }
-        let hnf = h.view((0, m), (m, 3)).into_owned();
-        let hff = h.view((m, m), (3, 3)).into_owned();
-        let marg = hff - hnf.transpose() * hnn.cholesky()?.solve(&hnf);
+        let (h, rhs, _) = self.linearise(&self.unknowns());
+        let (marg, _) = schur_complement(&h, &rhs, h.nrows() - 3)?;
         let marg = nalgebra::Matrix3::from_iterator(marg.iter().copied());
-        let marg = (marg + marg.transpose()) * 0.5;
         marg.cholesky().map(|_| marg)
     }
 
@@ -704,17 +695,7 @@ impl KeyframeWindow {
         // The prior and the factors touching node 0 (those between nodes 0 and 1); the factors
         // among the others stay factors. φ is kept (it comes last).
         let (h, rhs, _) = self.linearise_parts(&x, 2);
-        let r = b * (n - 1) + e;
-        let hmm = h.view((0, 0), (b, b)).into_owned();
-        let hmr = h.view((0, b), (b, r)).into_owned();
-        let hrr = h.view((b, b), (r, r)).into_owned();
-        let bm = rhs.rows(0, b).into_owned();
-        let br = rhs.rows(b, r).into_owned();
-        let mut hmm_reg = hmm.clone();
-        for k in 0..b {
-            hmm_reg[(k, k)] += 1e-9;
-        }
-        let Some(chol) = hmm_reg.cholesky() else {
+        let Some((hp, gp)) = schur_complement(&h, &rhs, b) else {
             // Degenerate: drop the node without information (φ keeps a prior about its value).
             self.nodes.pop_front();
             self.prior = (e == 3).then(|| Prior {
@@ -726,11 +707,6 @@ impl KeyframeWindow {
             });
             return;
         };
-        let hmm_inv_hmr = chol.solve(&hmr);
-        let hmm_inv_bm = chol.solve(&bm);
-        let mut hp = hrr - hmr.transpose() * hmm_inv_hmr;
-        hp = (&hp + hp.transpose()) * 0.5;
-        let gp = br - hmr.transpose() * hmm_inv_bm;
         self.nodes.pop_front();
         self.nodes[0].imu = None;
         self.nodes[0].visual = None;
@@ -742,6 +718,27 @@ impl KeyframeWindow {
             lin_phi: x.phi,
         });
     }
+}
+
+/// Schur-complements the first `m` unknowns out of the system `(h, rhs)`: the information
+/// (symmetrised) and right-hand side left on the others. `None` if the `m` block, regularised by
+/// 1e-9 on its diagonal, is not positive definite.
+fn schur_complement(
+    h: &DMatrix<f64>,
+    rhs: &DVector<f64>,
+    m: usize,
+) -> Option<(DMatrix<f64>, DVector<f64>)> {
+    let r = h.nrows() - m;
+    let mut hmm = h.view((0, 0), (m, m)).into_owned();
+    for k in 0..m {
+        hmm[(k, k)] += 1e-9;
+    }
+    let chol = hmm.cholesky()?;
+    let hmr = h.view((0, m), (m, r));
+    let mut hp = h.view((m, m), (r, r)) - hmr.transpose() * chol.solve(&hmr.into_owned());
+    hp = (&hp + hp.transpose()) * 0.5;
+    let gp = rhs.rows(m, r) - hmr.transpose() * chol.solve(&rhs.rows(0, m).into_owned());
+    Some((hp, gp))
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -453,10 +453,8 @@ pub struct OdometryStats {
     /// at a loss, a return to a stored keyframe it cannot join, a gap in the buffered IMU, or a
     /// solution that is not finite.
     pub window_restarts: u32,
-    /// `[window] gyro_misalignment`: the gyro's turn against the body frame as the keyframe
-    /// window last solved it (`ω_body = Exp(φ) ω_gyro`), rad.
-    pub window_gyro_misalignment_rad: Option<Vector3<f64>>,
-    /// The same after every window solve, as (newest keyframe's time, φ in rad)
+    /// `[window] gyro_misalignment`: the gyro's turn against the body frame (`ω_body = Exp(φ)
+    /// ω_gyro`) after every window solve, as (newest keyframe's time, φ in rad)
     /// (`OUT/window_gyro_turn.csv`): how the estimate settles over a flight.
     pub window_gyro_misalignment_history: Vec<(TimeNs, Vector3<f64>)>,
     pub keyframes: usize,
@@ -535,6 +533,16 @@ pub struct OdometryStats {
     pub vignette_corrected: bool,
     /// Pixels clipped at 255 by the vignetting correction (bright texture in the corners).
     pub vignette_saturated_px: u64,
+}
+
+impl OdometryStats {
+    /// `[window] gyro_misalignment`: the gyro's turn as the keyframe window last solved it, rad
+    /// (`None` before its first solve, or without the estimate).
+    pub fn window_gyro_misalignment_rad(&self) -> Option<Vector3<f64>> {
+        self.window_gyro_misalignment_history
+            .last()
+            .map(|&(_, phi)| phi)
+    }
 }
 
 /// The IMU's noise measured at rest (see [`OdometryStats::rest_imu_density`]).
@@ -1557,7 +1565,6 @@ impl Odometry {
         let solve_s = started.elapsed().as_secs_f64();
         if self.cfg.window.gyro_misalignment {
             let phi = self.window.gyro_misalignment_rad();
-            self.stats.window_gyro_misalignment_rad = Some(phi);
             self.stats.window_gyro_misalignment_history.push((t, phi));
         }
         self.stats.window_solve_s.push(solve_s);
