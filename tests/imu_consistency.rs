@@ -3,12 +3,14 @@
 //! scale 1 over every window, and an accelerometer reading 5 % high gives 1.05; the full gyro
 //! model recovers scale factors and non-orthogonal axes (and resists a noisy ground truth when
 //! its span covers several intervals); the accelerometer bias the ground truth implies is the
-//! one the IMU was given.
+//! one the IMU was given; the gyro's rotation over a horizon agrees with a consistent gyro's, gives
+//! back the density of a white gyro noise, and grows with the horizon for a scale-factor error
+//! (which the full gyro model takes out).
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use vidslam::dataset::GroundTruthState;
 use vidslam::eval::imu_consistency::{
-    align_gyro, fit_gyro_model, implied_accel_bias, imu_scale_spread,
+    align_gyro, fit_gyro_model, gyro_rotation_spread, implied_accel_bias, imu_scale_spread,
 };
 use vidslam::geometry::log_so3;
 use vidslam::imu::ImuSample;
@@ -310,4 +312,73 @@ fn the_implied_accelerometer_bias_is_the_one_the_imu_was_given() {
     .expect("windows");
     assert!(leak.p50_m_s2.norm() > 0.1, "{leak:?}");
     assert!(implied_accel_bias(&gt, &imu_with(40.0, &id, Vector3::zeros(), bias), 60.0).is_none());
+}
+
+#[test]
+fn the_rotation_spread_gives_back_a_white_gyro_noise_and_grows_with_a_scale_error() {
+    let seconds = 120.0;
+    let gt = ground_truth(seconds);
+    let turned = vidslam::geometry::exp_so3(&Vector3::new(0.004, -0.002, 0.015));
+    let bias = Vector3::new(-0.002, 0.02, 0.076);
+    // Consistent (turned and biased, both taken out by the alignment): nothing over any horizon.
+    let clean = imu(seconds, &turned, bias, 1.0);
+    let g = align_gyro(&gt, &clean).expect("enough rotation");
+    for horizon_s in [0.2, 1.0, 4.0] {
+        let s = gyro_rotation_spread(&gt, &clean, &g.r_imu_gt, &g.gyro_bias_rad_s, horizon_s)
+            .expect("windows");
+        let expected = (2.0 * seconds / horizon_s) as usize;
+        assert!(s.windows + 3 >= expected && s.windows <= expected, "{s:?}");
+        assert!(s.p90_deg < 0.01, "{s:?}");
+        assert!(s.equivalent_density_rad_s_sqrt_hz < 2e-5, "{s:?}");
+    }
+    // White noise of 1e-3 rad/s/√Hz at 400 Hz (uniform samples of that standard deviation).
+    let density = 1e-3;
+    let amplitude = density * 400f64.sqrt() * 3f64.sqrt();
+    let mut state = 7;
+    let noisy: Vec<ImuSample> = clean
+        .iter()
+        .map(|s| {
+            let mut s = *s;
+            for k in 0..3 {
+                s.gyro_rad_s[k] += amplitude * noise(&mut state);
+            }
+            s
+        })
+        .collect();
+    let g = align_gyro(&gt, &noisy).expect("enough rotation");
+    for horizon_s in [0.2, 1.0] {
+        let s = gyro_rotation_spread(&gt, &noisy, &g.r_imu_gt, &g.gyro_bias_rad_s, horizon_s)
+            .expect("windows");
+        let ratio = s.equivalent_density_rad_s_sqrt_hz / density;
+        assert!((ratio - 1.0).abs() < 0.15, "{horizon_s} s: {s:?}");
+    }
+    // A 1 % scale error on z (the yaw axis, ~0.3 rad/s): an error that grows with the rotation,
+    // so with the horizon, unlike white noise whose equivalent density stays put.
+    let m = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 1.01));
+    let scaled = imu_with(seconds, &m, Vector3::zeros(), Vector3::zeros());
+    let g = align_gyro(&gt, &scaled).expect("enough rotation");
+    let short =
+        gyro_rotation_spread(&gt, &scaled, &g.r_imu_gt, &g.gyro_bias_rad_s, 1.0).expect("windows");
+    let long =
+        gyro_rotation_spread(&gt, &scaled, &g.r_imu_gt, &g.gyro_bias_rad_s, 4.0).expect("windows");
+    assert!(short.p50_deg > 0.05, "{short:?}");
+    assert!(long.p50_deg > 3.0 * short.p50_deg, "{short:?} {long:?}");
+    assert!(
+        long.equivalent_density_rad_s_sqrt_hz > 1.5 * short.equivalent_density_rad_s_sqrt_hz,
+        "{short:?} {long:?}"
+    );
+    // Through the full gyro model the scale error is taken out again.
+    let model = fit_gyro_model(&gt, &scaled, 0.05).expect("model");
+    let through =
+        gyro_rotation_spread(&gt, &scaled, &model.m, &model.gyro_bias_rad_s, 4.0).expect("windows");
+    assert!(
+        through.p90_deg < 0.05 * long.p50_deg,
+        "{through:?} {long:?}"
+    );
+    // No window longer than the flight, no singular model.
+    assert!(gyro_rotation_spread(&gt, &clean, &g.r_imu_gt, &g.gyro_bias_rad_s, 200.0).is_none());
+    assert!(
+        gyro_rotation_spread(&gt, &clean, &Matrix3::zeros(), &bias, 1.0).is_none(),
+        "singular"
+    );
 }

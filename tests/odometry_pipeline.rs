@@ -176,6 +176,25 @@ fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
     assert_metric_takeoff(&dir, &b, "take-off with the measured noise");
 }
 
+/// `[tracking] gyro_random_walk_scale` reaches the estimator (a gyro bias free to wander moves the
+/// estimate) and a take-off with it is still metric.
+#[test]
+fn a_freer_gyro_bias_walk_reaches_the_estimate() {
+    let dir = takeoff();
+    let fixed = ReplayOptions::default();
+    let mut free = ReplayOptions::default();
+    free.tracker.gyro_random_walk_scale = 30.0;
+    let a = replay(&dir, &fixed, &mut |_, _| {}).unwrap();
+    let b = replay(&dir, &free, &mut |_, _| {}).unwrap();
+    let (ta, tb) = (trajectory(&a), trajectory(&b));
+    assert_eq!(ta.poses.len(), tb.poses.len());
+    assert!(
+        ta.poses.iter().zip(&tb.poses).any(|(p, q)| p != q),
+        "the gyro bias walk did not reach the estimate"
+    );
+    assert_metric_takeoff(&dir, &b, "take-off with a freer gyro bias walk");
+}
+
 /// The take-off refinement and the in-flight keyframe adjustment run on a thread of their own;
 /// offline their results are applied a fixed number of frames after they were started (as they
 /// would arrive in real time): the take-off's frames dead-reckoned meanwhile are re-predicted, the

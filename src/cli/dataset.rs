@@ -24,7 +24,9 @@ pub enum DatasetCommand {
     /// How far the IMU agrees with the ground truth (needs both): the rotation and gyro bias
     /// between the ground truth's body rate and the gyro, and the scale the IMU gives the ground
     /// truth over windows of each horizon (p10/p50/p90; 1 for a consistent IMU) — the best any
-    /// odometry can learn about the scale from this IMU (see `src/eval/imu_consistency.rs`).
+    /// odometry can learn about the scale from this IMU, and the gyro's integrated rotation
+    /// against the ground truth's over windows of each rotation horizon (p50/p90, and the white
+    /// gyro noise density that would explain it) (see `src/eval/imu_consistency.rs`).
     ImuCheck {
         /// Dataset folder (containing `mav0/`, or `mav0/` itself).
         dir: PathBuf,
@@ -41,6 +43,10 @@ pub enum DatasetCommand {
         /// Window over which the accelerometer bias implied by the ground truth is solved, s.
         #[arg(long, default_value_t = 2.0)]
         bias_window_s: f64,
+        /// Window lengths over which the integrated gyro is compared with the ground truth's
+        /// rotation, s (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "0.2,1,4")]
+        rotation_horizons_s: Vec<f64>,
     },
     /// The in-flight keyframe adjustment started at the truth (needs ground-truth states and
     /// depth maps: a `vidslam sim` dataset): every N-th frame a keyframe with its points at the
@@ -71,7 +77,15 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
             frame_rate_hz,
             gyro_span_s,
             bias_window_s,
-        } => imu_check(&dir, &horizons_s, frame_rate_hz, gyro_span_s, bias_window_s),
+            rotation_horizons_s,
+        } => imu_check(
+            &dir,
+            &horizons_s,
+            frame_rate_hz,
+            gyro_span_s,
+            bias_window_s,
+            &rotation_horizons_s,
+        ),
         DatasetCommand::AdjustCheck {
             dir,
             config,
@@ -238,9 +252,10 @@ fn imu_check(
     frame_rate_hz: f64,
     gyro_span_s: f64,
     bias_window_s: f64,
+    rotation_horizons_s: &[f64],
 ) -> anyhow::Result<()> {
     use crate::eval::imu_consistency::{
-        align_gyro, fit_gyro_model, implied_accel_bias, imu_scale_spread,
+        align_gyro, fit_gyro_model, gyro_rotation_spread, implied_accel_bias, imu_scale_spread,
     };
     use crate::runtime::scale_observer::ScaleObserverConfig;
     let ds = AslDataset::open(dir)?;
@@ -270,7 +285,8 @@ fn imu_check(
         g.residual_rms_rad_s,
         g.samples
     );
-    match fit_gyro_model(&gt.states, &imu, gyro_span_s) {
+    let model = fit_gyro_model(&gt.states, &imu, gyro_span_s);
+    match &model {
         Some(m) => {
             let (e, r, k) = (m.scale_error(), m.rotation_rad(), m.skew_rad());
             println!(
@@ -335,6 +351,37 @@ fn imu_check(
                 s.accel_bias_m_s2.x,
                 s.accel_bias_m_s2.y,
                 s.accel_bias_m_s2.z
+            ),
+            None => println!("{:<13} no window of this length", format!("{h} s")),
+        }
+    }
+    // The gyro's rotation against the ground truth's, as the white noise it amounts to: through
+    // the rotation fit (what an estimator of a turned gyro can correct) and through the full model.
+    let datasheet = ds.imu.noise.gyro_noise_density;
+    println!(
+        "{:<13} {:>8} {:>8} {:>8} {:>10}   white gyro noise that explains it, rad/s/√Hz (× sensor.yaml)",
+        "rotation", "windows", "p50 deg", "p90 deg", "(model)"
+    );
+    for &h in rotation_horizons_s {
+        let turned = gyro_rotation_spread(&gt.states, &imu, &g.r_imu_gt, &g.gyro_bias_rad_s, h);
+        let full = model
+            .as_ref()
+            .and_then(|m| gyro_rotation_spread(&gt.states, &imu, &m.m, &m.gyro_bias_rad_s, h));
+        match turned {
+            Some(s) => println!(
+                "{:<13} {:>8} {:>8.3} {:>8.3} {:>10}   {:.2e} (× {:.1}){}",
+                format!("{h} s"),
+                s.windows,
+                s.p50_deg,
+                s.p90_deg,
+                full.map_or("-".to_string(), |f| format!("{:.3}", f.p50_deg)),
+                s.equivalent_density_rad_s_sqrt_hz,
+                s.equivalent_density_rad_s_sqrt_hz / datasheet,
+                full.map_or(String::new(), |f| format!(
+                    "; through the gyro model {:.2e} (× {:.1})",
+                    f.equivalent_density_rad_s_sqrt_hz,
+                    f.equivalent_density_rad_s_sqrt_hz / datasheet
+                ))
             ),
             None => println!("{:<13} no window of this length", format!("{h} s")),
         }

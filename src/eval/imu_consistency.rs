@@ -15,6 +15,10 @@
 //!   velocity, accelerometer-bias error and tilt). With a consistent IMU every window gives 1; the
 //!   spread (p10–p90) is the best any odometry can learn about the scale from this IMU over that
 //!   horizon.
+//! - **Rotation over a horizon**: the gyro integrated over windows (with the fitted `R` and `b`)
+//!   against the ground truth's rotation over the same window, and the white gyro noise density
+//!   that would explain that spread. On S-V101 it is many times `sensor.yaml`'s density, because
+//!   the images were rendered along the Vicon estimate, which the real gyro did not measure.
 
 use super::stats::{percentile, sorted};
 use crate::dataset::GroundTruthState;
@@ -239,6 +243,88 @@ pub fn imu_scale_spread(
         p50: percentile(&scales, 50.0),
         p90: percentile(&scales, 90.0),
         accel_bias_m_s2: axis_percentile(&biases, 50.0),
+    })
+}
+
+/// The gyro's integrated rotation against the ground truth's over windows of one length.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RotationSpread {
+    pub horizon_s: f64,
+    /// Windows compared (they start every half horizon).
+    pub windows: usize,
+    /// Percentiles 50 / 90 of the angle between the two rotations, deg.
+    pub p50_deg: f64,
+    pub p90_deg: f64,
+    /// The per-axis white gyro noise that would give the same RMS angle over the horizon
+    /// (`sqrt(E|e|² / (3 H))`), rad/s/√Hz: a noise density for the estimator that makes the gyro
+    /// as uncertain as it is against these poses (for a rendered sequence, against its images).
+    pub equivalent_density_rad_s_sqrt_hz: f64,
+}
+
+/// Integrates the gyro over consecutive windows of `horizon_s` (starting every half horizon),
+/// each reading mapped back to the ground truth's body as `M⁻¹ (ω_imu − b)` — `M` the rotation of
+/// [`align_gyro`] or the full matrix of [`fit_gyro_model`] — and compares the rotation with the
+/// ground truth's over the same window. The rotation analogue of [`imu_scale_spread`]: with a
+/// consistent gyro every window agrees up to the gyro's white noise, so the spread over a horizon
+/// is the best any odometry can learn about rotation from this gyro over it. `None` if `M` is
+/// singular or no window could be compared.
+pub fn gyro_rotation_spread(
+    gt: &[GroundTruthState],
+    imu: &[ImuSample],
+    m_imu_gt: &Matrix3<f64>,
+    gyro_bias_rad_s: &Vector3<f64>,
+    horizon_s: f64,
+) -> Option<RotationSpread> {
+    if horizon_s.is_nan() || horizon_s <= 0.0 {
+        return None;
+    }
+    let m_inv = m_imu_gt.try_inverse()?;
+    // The readings in the ground truth's body frame, bias removed.
+    let body: Vec<ImuSample> = imu
+        .iter()
+        .map(|s| ImuSample {
+            gyro_rad_s: m_inv * (s.gyro_rad_s - gyro_bias_rad_s),
+            ..*s
+        })
+        .collect();
+    let imu = &body[..];
+    let (first, last) = (imu.first()?.t, imu.last()?.t);
+    let states: Vec<&GroundTruthState> = gt.iter().filter(|s| s.t > first && s.t < last).collect();
+    let bias = ImuBias::default();
+    let mut angles_rad = Vec::new();
+    let mut start = 0;
+    while let Some(s0) = states.get(start) {
+        let end = states.partition_point(|s| s.t.secs_since(s0.t) < horizon_s);
+        let Some(s1) = states.get(end) else {
+            break;
+        };
+        // (A gap in the ground truth longer than a tenth of the window: not compared.)
+        if s1.t.secs_since(s0.t) <= 1.1 * horizon_s {
+            let from = imu.partition_point(|s| s.t < s0.t).saturating_sub(1);
+            let to = (imu.partition_point(|s| s.t <= s1.t) + 1).min(imu.len());
+            let mut pre = Preintegration::new(s0.t, bias);
+            pre.integrate(&imu[from..to], s1.t, None);
+            let r0 = s0.t_world_body.rotation.to_rotation_matrix();
+            let r1 = s1.t_world_body.rotation.to_rotation_matrix();
+            let d_gt = (r0.inverse() * r1).into_inner();
+            let e = log_so3(&(d_gt.transpose() * pre.delta_r));
+            if e.iter().all(|v| v.is_finite()) {
+                angles_rad.push(e.norm());
+            }
+        }
+        start = states.partition_point(|s| s.t.secs_since(s0.t) < horizon_s / 2.0);
+    }
+    if angles_rad.is_empty() {
+        return None;
+    }
+    let mean_sq = angles_rad.iter().map(|a| a * a).sum::<f64>() / angles_rad.len() as f64;
+    let deg = sorted(angles_rad.iter().map(|a| a.to_degrees()));
+    Some(RotationSpread {
+        horizon_s,
+        windows: deg.len(),
+        p50_deg: percentile(&deg, 50.0),
+        p90_deg: percentile(&deg, 90.0),
+        equivalent_density_rad_s_sqrt_hz: (mean_sq / (3.0 * horizon_s)).sqrt(),
     })
 }
 
