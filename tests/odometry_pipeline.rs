@@ -139,12 +139,8 @@ fn offline_replays_are_identical() {
 /// reported for both sensors.
 #[test]
 fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
-    let dir = takeoff();
+    let (dir, a, b) = takeoff_replayed_with(|o| o.bootstrap.rest_imu_noise_factor = 1.5);
     let fixed = ReplayOptions::default();
-    let mut measured = ReplayOptions::default();
-    measured.bootstrap.rest_imu_noise_factor = 1.5;
-    let a = replay(&dir, &fixed, &mut |_, _| {}).unwrap();
-    let b = replay(&dir, &measured, &mut |_, _| {}).unwrap();
     let (da, db) = (
         a.odometry.rest_imu_density.expect("rest measured"),
         b.odometry.rest_imu_density.expect("rest measured"),
@@ -164,11 +160,7 @@ fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
         (scale, scale),
         "a measurement that equals the fixed scale cannot show it is used"
     );
-    let (ta, tb) = (trajectory(&a), trajectory(&b));
-    assert!(
-        ta.poses.iter().zip(&tb.poses).any(|(p, q)| p != q),
-        "the measured noise did not reach the estimate"
-    );
+    assert_trajectories_differ(&a, &b, "the measured noise did not reach the estimate");
     println!(
         "rest ratios gyro {:.2} accel {:.2} -> scales {:.2} / {:.2}",
         db.gyro_ratio, db.accel_ratio, db.gyro_scale, db.accel_scale
@@ -176,22 +168,43 @@ fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
     assert_metric_takeoff(&dir, &b, "take-off with the measured noise");
 }
 
+/// The take-off replayed with the default options and with `change` applied to them.
+fn takeoff_replayed_with(
+    change: impl FnOnce(&mut ReplayOptions),
+) -> (
+    PathBuf,
+    vidslam::runtime::ReplayOutput,
+    vidslam::runtime::ReplayOutput,
+) {
+    let dir = takeoff();
+    let mut changed = ReplayOptions::default();
+    change(&mut changed);
+    let a = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    let b = replay(&dir, &changed, &mut |_, _| {}).unwrap();
+    (dir, a, b)
+}
+
+/// Both replays give a pose for every frame, and some pose differs (`what` says what did not
+/// reach the estimate otherwise).
+fn assert_trajectories_differ(
+    a: &vidslam::runtime::ReplayOutput,
+    b: &vidslam::runtime::ReplayOutput,
+    what: &str,
+) {
+    let (ta, tb) = (trajectory(a), trajectory(b));
+    assert_eq!(ta.poses.len(), tb.poses.len());
+    assert!(
+        ta.poses.iter().zip(&tb.poses).any(|(p, q)| p != q),
+        "{what}"
+    );
+}
+
 /// `[tracking] gyro_random_walk_scale` reaches the estimator (a gyro bias free to wander moves the
 /// estimate) and a take-off with it is still metric.
 #[test]
 fn a_freer_gyro_bias_walk_reaches_the_estimate() {
-    let dir = takeoff();
-    let fixed = ReplayOptions::default();
-    let mut free = ReplayOptions::default();
-    free.tracker.gyro_random_walk_scale = 30.0;
-    let a = replay(&dir, &fixed, &mut |_, _| {}).unwrap();
-    let b = replay(&dir, &free, &mut |_, _| {}).unwrap();
-    let (ta, tb) = (trajectory(&a), trajectory(&b));
-    assert_eq!(ta.poses.len(), tb.poses.len());
-    assert!(
-        ta.poses.iter().zip(&tb.poses).any(|(p, q)| p != q),
-        "the gyro bias walk did not reach the estimate"
-    );
+    let (dir, a, b) = takeoff_replayed_with(|o| o.tracker.gyro_random_walk_scale = 30.0);
+    assert_trajectories_differ(&a, &b, "the gyro bias walk did not reach the estimate");
     assert_metric_takeoff(&dir, &b, "take-off with a freer gyro bias walk");
 }
 
