@@ -17,8 +17,9 @@
 //!   horizon.
 //! - **Rotation over a horizon**: the gyro integrated over windows (with the fitted `R` and `b`)
 //!   against the ground truth's rotation over the same window, and the white gyro noise density
-//!   that would explain that spread. On S-V101 it is many times `sensor.yaml`'s density, because
-//!   the images were rendered along the Vicon estimate, which the real gyro did not measure.
+//!   that would explain that spread. On V1_01 it is many times `sensor.yaml`'s density and grows
+//!   with the horizon: the real gyro and the Vicon attitude (along which S-V101's images are
+//!   rendered) disagree by a rate that wanders over seconds, whichever of the two it belongs to.
 
 use super::stats::{percentile, sorted};
 use crate::dataset::GroundTruthState;
