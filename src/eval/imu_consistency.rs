@@ -64,6 +64,13 @@ fn imu_at(
     Some(field(a) * (1.0 - w) + field(b) * w)
 }
 
+/// The samples of `imu` inside `[t0, t1]` and the one on each side, for a preintegration over it.
+fn samples_bracketing(imu: &[ImuSample], t0: TimeNs, t1: TimeNs) -> &[ImuSample] {
+    let from = imu.partition_point(|s| s.t < t0).saturating_sub(1);
+    let to = (imu.partition_point(|s| s.t <= t1) + 1).min(imu.len());
+    &imu[from..to]
+}
+
 fn gyro_of(s: &ImuSample) -> Vector3<f64> {
     s.gyro_rad_s
 }
@@ -209,9 +216,7 @@ pub fn imu_scale_spread(
             })
             .collect();
         let t_end = window.last()?.t;
-        let from = imu.partition_point(|s| s.t < f0.t).saturating_sub(1);
-        let to = (imu.partition_point(|s| s.t <= t_end) + 1).min(imu.len());
-        let samples = &imu[from..to];
+        let samples = samples_bracketing(imu, f0.t, t_end);
         let intervals: Vec<Preintegration> = window
             .windows(2)
             .map(|w| {
@@ -301,10 +306,8 @@ pub fn gyro_rotation_spread(
         };
         // (A gap in the ground truth longer than a tenth of the window: not compared.)
         if s1.t.secs_since(s0.t) <= 1.1 * horizon_s {
-            let from = imu.partition_point(|s| s.t < s0.t).saturating_sub(1);
-            let to = (imu.partition_point(|s| s.t <= s1.t) + 1).min(imu.len());
             let mut pre = Preintegration::new(s0.t, bias);
-            pre.integrate(&imu[from..to], s1.t, None);
+            pre.integrate(samples_bracketing(imu, s0.t, s1.t), s1.t, None);
             let r0 = s0.t_world_body.rotation.to_rotation_matrix();
             let r1 = s1.t_world_body.rotation.to_rotation_matrix();
             let d_gt = (r0.inverse() * r1).into_inner();

@@ -155,7 +155,7 @@ pub fn adjust_from_truth(
             &pyr,
             &imu,
             t_body_cam,
-            ds.imu.noise,
+            cfg.tracking.imu_noise(ds.imu.noise),
             cfg.tracking.imu_noise_scale,
             cfg.tracking.gradient_weight_gray_px,
             &bundle,

@@ -355,11 +355,12 @@ fn replay_gt_depth(
     let state0 = start_state(&gt, t0)?;
     let cam = ds.camera.model;
     let t_body_cam = ds.camera.t_body_cam;
+    let noise = opts.tracker.imu_noise(ds.imu.noise);
     let mut tracker = Tracker::new(
         opts.tracker.clone(),
         &cam,
         t_body_cam,
-        ds.imu.noise,
+        noise,
         state0,
         opts.initial_std.covariance(),
     );
@@ -376,7 +377,7 @@ fn replay_gt_depth(
             first_result(rec.t, &tracker)
         } else {
             let mut pre = Preintegration::new(prev_t, tracker.state().bias);
-            pre.integrate(&imu, rec.t, Some(&ds.imu.noise));
+            pre.integrate(&imu, rec.t, Some(&noise));
             tracker.track(rec.t, &img, &pre)
         };
         let need_kf = k == 0 || result.wants_keyframe;

@@ -1,6 +1,7 @@
 //! Tracking parameters (the `[tracking]` table of the TOML config). Every field has a unit in its
 //! name or doc; defaults are what `vidslam replay` uses.
 
+use crate::imu::ImuNoise;
 use serde::{Deserialize, Serialize};
 
 /// Number of pyramid levels the tracker uses (level 0 = full resolution).
@@ -72,7 +73,8 @@ pub struct TrackerConfig {
     /// understate a real MEMS IMU on a vibrating airframe; random walks are kept).
     pub imu_noise_scale: f64,
     /// The gyro bias random walk of `imu0/sensor.yaml` is multiplied by this, everywhere the
-    /// odometry uses it (tracker, keyframe window, keyframe adjustment, rest detector). A
+    /// odometry uses it (tracker, keyframe window, keyframe adjustment, rest detector; also the
+    /// tracking-only `--depth gt` replay and `dataset adjust-check`: [`Self::imu_noise`]). A
     /// datasheet's walk lets the bias move 4e-5 rad/s in 5 s; a gyro that disagrees with the
     /// camera by a slowly wandering rate (S-V101's real gyro against the images rendered along the
     /// Vicon estimate: 0.2°/s on two axes, correlated over seconds — `vidslam dataset imu-check`,
@@ -90,6 +92,18 @@ pub struct TrackerConfig {
     /// absorb. The thresholds (gradients, Huber, outliers) were tuned on uncorrected images, whose
     /// corners the correction amplifies by up to 1.5x, noise included.
     pub correct_vignetting: bool,
+}
+
+impl TrackerConfig {
+    /// The IMU's noise (`imu0/sensor.yaml`) as these settings use it: the gyro bias random walk
+    /// times `gyro_random_walk_scale`. (The white densities are inflated by `imu_noise_scale`
+    /// where each estimator weighs them.)
+    pub fn imu_noise(&self, sensor: ImuNoise) -> ImuNoise {
+        ImuNoise {
+            gyro_random_walk: sensor.gyro_random_walk * self.gyro_random_walk_scale,
+            ..sensor
+        }
+    }
 }
 
 impl Default for TrackerConfig {
@@ -121,5 +135,30 @@ impl Default for TrackerConfig {
             use_vision: true,
             correct_vignetting: false,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_noise_used_frees_the_gyro_bias_walk_only() {
+        let sensor = ImuNoise::euroc_adis16448();
+        let cfg = TrackerConfig::default();
+        assert_eq!(cfg.imu_noise(sensor), sensor);
+        let free = TrackerConfig {
+            gyro_random_walk_scale: 30.0,
+            ..cfg
+        };
+        let n = free.imu_noise(sensor);
+        assert_eq!(n.gyro_random_walk, 30.0 * sensor.gyro_random_walk);
+        assert_eq!(
+            ImuNoise {
+                gyro_random_walk: sensor.gyro_random_walk,
+                ..n
+            },
+            sensor
+        );
     }
 }

@@ -733,7 +733,7 @@ pub struct Odometry {
 
 impl Odometry {
     pub fn new(cfg: OdometryConfig, mut rig: Rig) -> Self {
-        rig.noise.gyro_random_walk *= cfg.tracking.gyro_random_walk_scale;
+        rig.noise = cfg.tracking.imu_noise(rig.noise);
         let gyro = GyroLink::new(cfg.gyro_alignment.clone());
         let gyro_applied_rad = gyro.applied_rad();
         let vignette_gain = rig
