@@ -9,8 +9,9 @@ use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
+use vidslam::runtime::map_depth::keyframe_depth_errors;
 use vidslam::runtime::odometry::{OdometryConfig, Phase, TakeoffRefinement};
-use vidslam::runtime::{ReplayOptions, replay, trajectory};
+use vidslam::runtime::{DepthSource, ReplayOptions, replay, trajectory};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::tracking::pose_of;
 
@@ -206,6 +207,32 @@ fn a_freer_gyro_bias_walk_reaches_the_estimate() {
     let (dir, a, b) = takeoff_replayed_with(|o| o.tracker.gyro_random_walk_scale = 30.0);
     assert_trajectories_differ(&a, &b, "the gyro bias walk did not reach the estimate");
     assert_metric_takeoff(&dir, &b, "take-off with a freer gyro bias walk");
+}
+
+/// `replay --mapping-poses gt` (a diagnostic): the mapper's views reach it posed by the truth's
+/// motion from their keyframe — the replay changes, the maps triangulated from it are within 3 %
+/// of the true depth and the take-off stays metric — and a replay without a mapper refuses it.
+#[test]
+fn mapping_views_posed_by_the_truth_reach_the_mapper() {
+    let (dir, a, b) = takeoff_replayed_with(|o| o.mapping_true_view_poses = true);
+    assert_trajectories_differ(&a, &b, "the true view poses did not reach the mapper");
+    let ds = AslDataset::open(&dir).unwrap();
+    let rows =
+        keyframe_depth_errors(&ds, &b.mapping.keyframe_maps, &b.mapping.keyframe_times).unwrap();
+    assert!(!rows.is_empty(), "no keyframe map with a true depth");
+    let mut errs: Vec<f64> = rows.iter().map(|r| r.abs_median_pct).collect();
+    errs.sort_by(f64::total_cmp);
+    let median_pct = errs[errs.len() / 2];
+    println!("maps from the true view poses: median |depth error| {median_pct:.2} %");
+    assert!(median_pct < 3.0, "{median_pct} %");
+    assert_metric_takeoff(&dir, &b, "take-off with the true view poses");
+    let no_mapper = ReplayOptions {
+        depth: DepthSource::GroundTruth,
+        mapping_true_view_poses: true,
+        ..Default::default()
+    };
+    let e = replay(&dir, &no_mapper, &mut |_, _| {}).unwrap_err();
+    assert!(e.to_string().contains("--mapping-poses gt"), "{e}");
 }
 
 /// The take-off refinement and the in-flight keyframe adjustment run on a thread of their own;

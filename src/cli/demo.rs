@@ -1,6 +1,6 @@
 //! `vidslam demo`: simulate the built-in flight, run the full odometry over it, evaluate.
 
-use super::replay::{DepthArg, ReplayArgs, StartArg, run_with};
+use super::replay::{DepthArg, MappingPosesArg, ReplayArgs, StartArg, run_with};
 use crate::runtime::Config;
 use crate::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use anyhow::Context;
@@ -236,6 +236,7 @@ fn run_one(
     let args = ReplayArgs {
         dir: data,
         depth: DepthArg::Semidense,
+        mapping_poses: MappingPosesArg::Tracked,
         start: StartArg::Static,
         realtime: a.realtime,
         out: out.join("replay"),

@@ -28,6 +28,13 @@ pub struct ReplayArgs {
     /// simulator's ground-truth depth (mav0/depth0) and start state, which measures tracking alone.
     #[arg(long, value_enum, default_value = "semidense")]
     pub depth: DepthArg,
+    /// Poses the semidense mapper triangulates each keyframe's views from. `tracked`: the
+    /// odometry's (the product). `gt`: a diagnostic — the tracked keyframe pose times the ground
+    /// truth's camera motion from the keyframe to the view, so the maps' relative geometry (and
+    /// baseline) is exact while tracking, the keyframe window and the adjustment stay the
+    /// odometry's; measures what the triangulation poses cost (needs the ground truth).
+    #[arg(long, value_enum, default_value = "tracked")]
+    pub mapping_poses: MappingPosesArg,
     /// First state of the full odometry: `static` detects the vehicle at rest (the product's
     /// way); `gt` takes the ground truth at the first frame (sequences that start in motion).
     #[arg(long, value_enum, default_value = "static")]
@@ -92,6 +99,14 @@ pub enum DepthArg {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MappingPosesArg {
+    /// The views' tracked poses.
+    Tracked,
+    /// The ground truth's motion from the keyframe (diagnostic).
+    Gt,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum StartArg {
     Static,
     Gt,
@@ -123,6 +138,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
             DepthArg::Gt => DepthSource::GroundTruth,
             DepthArg::Semidense => DepthSource::Semidense,
         },
+        mapping_true_view_poses: a.mapping_poses == MappingPosesArg::Gt,
         start: match a.start {
             StartArg::Static => StartMode::Static,
             StartArg::Gt => StartMode::GroundTruth,
@@ -171,6 +187,9 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         depth_name(a.depth),
         a.realtime,
     );
+    if a.mapping_poses == MappingPosesArg::Gt {
+        report.mapping_poses = "gt".into();
+    }
     let ds = AslDataset::open(&a.dir)?;
     if let Some(gt) = ds.ground_truth()? {
         report.evaluate_against(&gt.trajectory(), &est);

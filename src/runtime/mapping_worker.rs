@@ -9,6 +9,7 @@
 //! deterministic. The dense (superpixel) thread of section IV-B will hang off the same snapshots:
 //! [`MappingOutput::keyframe_maps`] is what it will consume.
 
+use super::true_view_poses::{TrueCameraPoses, ViewPoser};
 use crate::camera::CameraModel;
 use crate::image::Image;
 use crate::mapping::semidense::{SemidenseConfig, SemidenseKeyframe, SemidenseMap};
@@ -114,7 +115,7 @@ impl MappingOutput {
 }
 
 /// How the mapping thread runs.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct MappingOptions {
     /// Length of the job and snapshot queues.
     pub queue_len: usize,
@@ -127,6 +128,9 @@ pub struct MappingOptions {
     pub max_view_backlog: usize,
     /// The thread's nice value is raised by this much ([`super::thread_priority`]).
     pub nice_increment: i32,
+    /// Diagnostic (`vidslam replay --mapping-poses gt`): views are triangulated from the true
+    /// motion from their keyframe instead of their tracked poses ([`super::true_view_poses`]).
+    pub true_view_poses: Option<Arc<TrueCameraPoses>>,
 }
 
 /// Handle of a running mapping thread.
@@ -220,6 +224,7 @@ fn run(
     let mut cur: Option<Current> = None;
     let mut scratch = Image::<f32>::new(camera.width, camera.height);
     let mut backlog = VecDeque::new();
+    let mut poser = opts.true_view_poses.clone().map(ViewPoser::new);
     loop {
         if backlog.is_empty() {
             match jobs.recv() {
@@ -252,6 +257,9 @@ fn run(
                     out.keyframe_times.push(c.t);
                     m
                 });
+                if let Some(p) = poser.as_mut() {
+                    p.start_keyframe(frame.t, &frame.t_world_cam);
+                }
                 to_f32(&frame.image, &mut scratch);
                 let mut kf = SemidenseKeyframe::new(&scratch, &camera, &frame.t_world_cam, &cfg);
                 if let Some((lo, hi)) = inv_depth_range_m_inv {
@@ -263,7 +271,7 @@ fn run(
                 let mut views = 0;
                 for h in &history {
                     to_f32(&h.image, &mut scratch);
-                    let st = kf.observe(&scratch, &h.t_world_cam);
+                    let st = kf.observe(&scratch, &view_pose(&poser, h));
                     out.view_scales.extend(st.view_scale);
                     views += 1;
                 }
@@ -279,7 +287,7 @@ fn run(
             MapJob::Observe { frame, .. } => {
                 if let Some(c) = cur.as_mut() {
                     to_f32(&frame.image, &mut scratch);
-                    let st = c.kf.observe(&scratch, &frame.t_world_cam);
+                    let st = c.kf.observe(&scratch, &view_pose(&poser, &frame));
                     out.view_scales.extend(st.view_scale);
                     c.views += 1;
                     if frame.t > c.t {
@@ -315,6 +323,13 @@ fn run(
         out.keyframe_times.push(c.t);
     }
     out
+}
+
+/// The pose `f` is triangulated from: its tracked one, or the diagnostic's.
+fn view_pose(poser: &Option<ViewPoser>, f: &MapFrame) -> Isometry3<f64> {
+    poser
+        .as_ref()
+        .map_or(f.t_world_cam, |p| p.view_pose(f.t, &f.t_world_cam))
 }
 
 fn to_f32(src: &Image<u8>, dst: &mut Image<f32>) {

@@ -13,6 +13,7 @@ pub mod report;
 pub mod scale_observer;
 pub mod takeoff;
 pub mod thread_priority;
+pub mod true_view_poses;
 
 pub use config::Config;
 pub use replay::{DepthSource, Recoveries, ReplayOptions, ReplayOutput, replay};

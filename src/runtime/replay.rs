@@ -11,6 +11,7 @@ use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
 use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, OdometryStats, Phase, Rig};
 use super::scale_observer::ScaleObserverConfig;
+use super::true_view_poses::TrueCameraPoses;
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::static_init::StaticDetectorConfig;
@@ -56,6 +57,9 @@ pub struct ReplayOptions {
     pub scale_observer: ScaleObserverConfig,
     pub gyro_alignment: GyroAlignmentConfig,
     pub depth: DepthSource,
+    /// Diagnostic of the full odometry: the mapper's views posed by the ground truth's motion
+    /// from their keyframe ([`super::true_view_poses`]; needs the dataset's ground truth).
+    pub mapping_true_view_poses: bool,
     pub start: StartMode,
     /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
     pub realtime: bool,
@@ -122,6 +126,7 @@ impl Default for ReplayOptions {
             scale_observer: ScaleObserverConfig::default(),
             gyro_alignment: GyroAlignmentConfig::default(),
             depth: DepthSource::Semidense,
+            mapping_true_view_poses: false,
             start: StartMode::Static,
             realtime: false,
             max_seconds: None,
@@ -200,6 +205,10 @@ pub fn replay(
     progress: Progress,
 ) -> Result<ReplayOutput, ReplayError> {
     match opts.depth {
+        DepthSource::GroundTruth if opts.mapping_true_view_poses => Err(ReplayError::Input(
+            "--mapping-poses gt poses the semidense mapper's views; --depth gt has no mapper"
+                .into(),
+        )),
         DepthSource::GroundTruth => replay_gt_depth(dir, opts, progress),
         DepthSource::Semidense => replay_full(dir, opts, progress),
     }
@@ -259,6 +268,20 @@ fn replay_full(
     progress: Progress,
 ) -> Result<ReplayOutput, ReplayError> {
     let ds = AslDataset::open(dir)?;
+    let true_view_poses = if opts.mapping_true_view_poses {
+        let gt = ds.ground_truth()?.ok_or_else(|| {
+            ReplayError::Input(format!(
+                "{}: --mapping-poses gt needs mav0/state_groundtruth_estimate0/data.csv",
+                ds.mav0().display()
+            ))
+        })?;
+        Some(std::sync::Arc::new(TrueCameraPoses::new(
+            gt.trajectory(),
+            ds.camera.t_body_cam,
+        )))
+    } else {
+        None
+    };
     let gt = match opts.start {
         StartMode::GroundTruth => Some(ds.ground_truth()?.ok_or_else(|| {
             ReplayError::Input(format!(
@@ -280,6 +303,7 @@ fn replay_full(
         scale_observer: opts.scale_observer,
         gyro_alignment: opts.gyro_alignment.clone(),
         realtime: opts.realtime,
+        mapping_true_view_poses: true_view_poses,
     };
     let rig = Rig {
         camera: ds.camera.model,

@@ -66,6 +66,9 @@ pub struct ReplayReport {
     pub duration_s: f64,
     pub vision: bool,
     pub depth: String,
+    /// Poses the mapper triangulated from: `tracked` (the product) or `gt` (`vidslam replay
+    /// --mapping-poses gt`, a diagnostic).
+    pub mapping_poses: String,
     /// Replayed paced at the camera's timestamps (`--realtime`): the background results arrived
     /// as late as this machine made them, so the figures are one sample of a timing-dependent run.
     pub realtime: bool,
@@ -346,6 +349,7 @@ impl ReplayReport {
             duration_s,
             vision,
             depth: depth.to_string(),
+            mapping_poses: "tracked".to_string(),
             realtime,
             frames_waiting: out.frames_waiting,
             phases,
@@ -523,6 +527,12 @@ impl ReplayReport {
     pub fn to_table(&self) -> String {
         let mut s = String::new();
         let mut row = |k: &str, v: String| s.push_str(&format!("{k:<24} {v}\n"));
+        if self.mapping_poses != "tracked" {
+            row(
+                "mapping poses",
+                format!("{} (diagnostic, not the product)", self.mapping_poses),
+            );
+        }
         row("frames in", self.frames_in.to_string());
         row("frames tracked", self.frames_tracked.to_string());
         row(

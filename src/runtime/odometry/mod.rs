@@ -64,6 +64,7 @@ use super::refinement_worker::{
 };
 use super::scale_observer::{ScaleObserver, ScaleObserverConfig, ScaleSample};
 use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
+use super::true_view_poses::TrueCameraPoses;
 use crate::camera::{CameraModel, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
@@ -417,6 +418,9 @@ pub struct OdometryConfig {
     pub gyro_alignment: GyroAlignmentConfig,
     /// Real-time mode: never wait for the mapper (non-deterministic).
     pub realtime: bool,
+    /// Diagnostic: the mapper triangulates from the true motion from each keyframe
+    /// ([`crate::runtime::true_view_poses`]); `None` in the product.
+    pub mapping_true_view_poses: Option<Arc<TrueCameraPoses>>,
 }
 
 /// A sinusoidal texture over the whole image, for tests that need gradient pixels everywhere.
@@ -757,6 +761,7 @@ impl Odometry {
                 realtime: cfg.realtime,
                 max_view_backlog: cfg.bootstrap.max_view_backlog,
                 nice_increment: cfg.bootstrap.background_nice,
+                true_view_poses: cfg.mapping_true_view_poses.clone(),
             },
         );
         let refiner = ((cfg.keyframe_bundle.enabled || cfg.bootstrap.refine_takeoff_passes > 0)
