@@ -17,6 +17,7 @@
 use crate::dataset::Trajectory;
 use crate::time::TimeNs;
 use nalgebra::Isometry3;
+use std::sync::Arc;
 
 /// Ground-truth samples farther apart than this are not interpolated across, ns.
 const MAX_GAP_NS: i64 = 50_000_000;
@@ -45,13 +46,13 @@ impl TrueCameraPoses {
 /// Poses the views of the keyframe under construction by the true motion from it.
 #[derive(Clone, Debug)]
 pub struct ViewPoser {
-    truth: std::sync::Arc<TrueCameraPoses>,
+    truth: Arc<TrueCameraPoses>,
     /// The current keyframe's (tracked, true) camera poses.
     keyframe: Option<(Isometry3<f64>, Isometry3<f64>)>,
 }
 
 impl ViewPoser {
-    pub fn new(truth: std::sync::Arc<TrueCameraPoses>) -> Self {
+    pub fn new(truth: Arc<TrueCameraPoses>) -> Self {
         ViewPoser {
             truth,
             keyframe: None,
@@ -106,7 +107,7 @@ mod tests {
 
     #[test]
     fn a_view_gets_the_true_motion_from_its_keyframe_on_the_tracked_keyframe_pose() {
-        let truth = std::sync::Arc::new(truth());
+        let truth = Arc::new(truth());
         let mut poser = ViewPoser::new(truth.clone());
         let kf_tracked = pose([3.0, -1.0, 0.5], [0.1, -0.2, 0.3]);
         poser.start_keyframe(TimeNs(20_000_000), &kf_tracked);
@@ -124,7 +125,7 @@ mod tests {
 
     #[test]
     fn without_the_truth_the_tracked_pose_stands() {
-        let mut poser = ViewPoser::new(std::sync::Arc::new(truth()));
+        let mut poser = ViewPoser::new(Arc::new(truth()));
         let tracked = pose([1.0, 2.0, 3.0], [0.3, 0.0, 0.0]);
         // No keyframe yet.
         assert_eq!(poser.view_pose(TimeNs(50_000_000), &tracked), tracked);
