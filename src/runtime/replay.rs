@@ -24,6 +24,7 @@ use crate::tracking::{
 };
 use nalgebra::Vector3;
 use std::path::Path;
+use std::sync::Arc;
 
 /// Where keyframe depth comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -261,6 +262,16 @@ impl ReplayInput {
     }
 }
 
+/// The dataset's ground truth, which `option` needs; the error names the file.
+fn required_ground_truth(ds: &AslDataset, option: &str) -> Result<GroundTruth, ReplayError> {
+    ds.ground_truth()?.ok_or_else(|| {
+        ReplayError::Input(format!(
+            "{}: {option} needs mav0/state_groundtruth_estimate0/data.csv",
+            ds.mav0().display()
+        ))
+    })
+}
+
 /// The full odometry (semidense mapping thread, rest detection, bootstrap).
 fn replay_full(
     dir: &Path,
@@ -268,29 +279,17 @@ fn replay_full(
     progress: Progress,
 ) -> Result<ReplayOutput, ReplayError> {
     let ds = AslDataset::open(dir)?;
-    let true_view_poses = if opts.mapping_true_view_poses {
-        let gt = ds.ground_truth()?.ok_or_else(|| {
-            ReplayError::Input(format!(
-                "{}: --mapping-poses gt needs mav0/state_groundtruth_estimate0/data.csv",
-                ds.mav0().display()
-            ))
-        })?;
-        Some(std::sync::Arc::new(TrueCameraPoses::new(
-            gt.trajectory(),
-            ds.camera.t_body_cam,
-        )))
-    } else {
-        None
+    // The ground truth is read once, for whichever option needs it.
+    let truth = match (opts.start, opts.mapping_true_view_poses) {
+        (StartMode::GroundTruth, _) => Some(required_ground_truth(&ds, "--start gt")?),
+        (StartMode::Static, true) => Some(required_ground_truth(&ds, "--mapping-poses gt")?),
+        (StartMode::Static, false) => None,
     };
-    let gt = match opts.start {
-        StartMode::GroundTruth => Some(ds.ground_truth()?.ok_or_else(|| {
-            ReplayError::Input(format!(
-                "{}: --start gt needs mav0/state_groundtruth_estimate0/data.csv",
-                ds.mav0().display()
-            ))
-        })?),
-        StartMode::Static => None,
-    };
+    let true_view_poses = truth
+        .as_ref()
+        .filter(|_| opts.mapping_true_view_poses)
+        .map(|g| Arc::new(TrueCameraPoses::new(g.trajectory(), ds.camera.t_body_cam)));
+    let gt = truth.filter(|_| opts.start == StartMode::GroundTruth);
     let ReplayInput { imu, span, t0 } = ReplayInput::read(&ds, gt.as_ref(), opts.max_seconds)?;
     let cfg = OdometryConfig {
         tracking: opts.tracker.clone(),
@@ -368,12 +367,7 @@ fn replay_gt_depth(
     progress: Progress,
 ) -> Result<ReplayOutput, ReplayError> {
     let ds = AslDataset::open(dir)?;
-    let gt = ds.ground_truth()?.ok_or_else(|| {
-        ReplayError::Input(format!(
-            "{}: no mav0/state_groundtruth_estimate0/data.csv (the start state comes from it)",
-            ds.mav0().display()
-        ))
-    })?;
+    let gt = required_ground_truth(&ds, "--depth gt (its start state)")?;
     let ReplayInput { imu, span, t0 } = ReplayInput::read(&ds, Some(&gt), opts.max_seconds)?;
 
     let state0 = start_state(&gt, t0)?;
