@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
 use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
-use vidslam::runtime::map_depth::keyframe_depth_errors;
+use vidslam::runtime::map_depth::{keyframe_depth_errors, median};
 use vidslam::runtime::odometry::{OdometryConfig, Phase, TakeoffRefinement};
 use vidslam::runtime::{DepthSource, ReplayOptions, replay, trajectory};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
@@ -220,9 +220,7 @@ fn mapping_views_posed_by_the_truth_reach_the_mapper() {
     let rows =
         keyframe_depth_errors(&ds, &b.mapping.keyframe_maps, &b.mapping.keyframe_times).unwrap();
     assert!(!rows.is_empty(), "no keyframe map with a true depth");
-    let mut errs: Vec<f64> = rows.iter().map(|r| r.abs_median_pct).collect();
-    errs.sort_by(f64::total_cmp);
-    let median_pct = errs[errs.len() / 2];
+    let median_pct = median(&mut rows.iter().map(|r| r.abs_median_pct).collect::<Vec<_>>());
     println!("maps from the true view poses: median |depth error| {median_pct:.2} %");
     assert!(median_pct < 3.0, "{median_pct} %");
     assert_metric_takeoff(&dir, &b, "take-off with the true view poses");
