@@ -11,7 +11,7 @@ use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
 use vidslam::runtime::map_depth::{keyframe_depth_errors, median};
 use vidslam::runtime::odometry::{OdometryConfig, Phase, TakeoffRefinement};
-use vidslam::runtime::{DepthSource, ReplayOptions, replay, trajectory};
+use vidslam::runtime::{DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::tracking::pose_of;
 
@@ -70,6 +70,21 @@ fn assert_metric_takeoff(dir: &std::path::Path, out: &vidslam::runtime::ReplayOu
     );
     assert!(e.ate_rmse_m < 0.04, "{}", e.ate_rmse_m);
     assert!(e.scale_error_pct < 7.0, "{}", e.scale_error_pct);
+    // The velocity it sends with the pose, as the report measures it (the simulator records the
+    // true velocity): a world left unturned or a lagging velocity would be tenths of m/s off.
+    let gt = AslDataset::open(dir)
+        .unwrap()
+        .ground_truth()
+        .unwrap()
+        .unwrap();
+    let mut report = ReplayReport::new(out, true, "semidense", false);
+    report.set_velocity_errors(&gt, &trajectory(out), out);
+    let (rmse, p90) = (
+        report.velocity_rmse_m_s.expect("velocity error"),
+        report.velocity_p90_m_s.unwrap(),
+    );
+    println!("{what}: velocity error {rmse:.4} m/s RMSE, {p90:.4} m/s p90");
+    assert!(rmse < 0.05, "{rmse}");
 }
 
 /// A noise-free render of the built-in flight (all of it, or its first `seconds`) in a fresh

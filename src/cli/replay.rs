@@ -193,6 +193,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     let ds = AslDataset::open(&a.dir)?;
     if let Some(gt) = ds.ground_truth()? {
         report.evaluate_against(&gt.trajectory(), &est);
+        report.set_velocity_errors(&gt, &est, &out);
         let imu: Vec<_> = ds.imu_samples()?.collect::<Result<_, _>>()?;
         if let Some(b) = implied_accel_bias(&gt.states, &imu, IMPLIED_BIAS_WINDOW_S) {
             report.set_implied_accel_bias(b.p50_m_s2);

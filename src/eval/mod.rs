@@ -12,7 +12,8 @@
 //! 3. [`ate`]: absolute translation error (m) and rotation error (deg) per pose after alignment;
 //!    [`body_offset`]: the part of the rotation error that is a rotation fixed in the body frame.
 //! 4. [`rpe`]: relative pose error over 1 m and 10 m of travelled ground-truth distance.
-//! 5. [`report`]: the figures as a flat, stably-keyed JSON object and a readable table;
+//! 5. [`velocity`]: the velocity's error, where the ground truth records one.
+//! 6. [`report`]: the figures as a flat, stably-keyed JSON object and a readable table;
 //!    [`plot`]: a PNG with the top view of both trajectories and the ATE over time.
 //!
 //! Poses are `t_world_body` (see [`crate::geometry`]); the "world" of the estimate is mapped into
@@ -27,6 +28,7 @@ pub mod report;
 pub mod rpe;
 pub mod stats;
 pub mod umeyama;
+pub mod velocity;
 
 pub use associate::{PosePair, associate};
 pub use plot::{PlotError, plot_report};
@@ -115,14 +117,15 @@ pub enum EvalError {
     Alignment(#[from] UmeyamaError),
 }
 
-/// Evaluates `est` against `gt`: associates, aligns as `opts.align` asks, and computes the ATE,
-/// rotation error, RPE over [`RPE_SEGMENTS_M`] and the Sim3 scale. Both trajectories must be
-/// time-ordered (as [`Trajectory::read`] guarantees).
-pub fn evaluate(
-    gt: &Trajectory,
-    est: &Trajectory,
-    opts: &EvalOptions,
-) -> Result<EvalReport, EvalError> {
+/// The pairs of `est` and `gt` at the same times, the Sim3 alignment of the estimate's positions
+/// onto the ground truth's, and the transform `opts.align` asks for (the one applied).
+struct Aligned {
+    pairs: Vec<PosePair>,
+    sim3: Sim3,
+    t_gtworld_estworld: Sim3,
+}
+
+fn align(gt: &Trajectory, est: &Trajectory, opts: &EvalOptions) -> Result<Aligned, EvalError> {
     let pairs = associate(gt, est, opts.max_dt_ns);
     if pairs.is_empty() {
         let span = |t: &Trajectory| match t.span() {
@@ -156,6 +159,33 @@ pub fn evaluate(
         Alignment::Se3 => umeyama(&p_est, &p_gt, false)?,
         Alignment::None => Sim3::identity(),
     };
+    Ok(Aligned {
+        pairs,
+        sim3,
+        t_gtworld_estworld,
+    })
+}
+
+/// The transform from the estimate's world into the ground truth's that [`evaluate`] applies
+/// with the same options (for figures it does not compute itself, such as
+/// [`velocity::velocity_errors`]).
+pub fn alignment(gt: &Trajectory, est: &Trajectory, opts: &EvalOptions) -> Result<Sim3, EvalError> {
+    align(gt, est, opts).map(|a| a.t_gtworld_estworld)
+}
+
+/// Evaluates `est` against `gt`: associates, aligns as `opts.align` asks, and computes the ATE,
+/// rotation error, RPE over [`RPE_SEGMENTS_M`] and the Sim3 scale. Both trajectories must be
+/// time-ordered (as [`Trajectory::read`] guarantees).
+pub fn evaluate(
+    gt: &Trajectory,
+    est: &Trajectory,
+    opts: &EvalOptions,
+) -> Result<EvalReport, EvalError> {
+    let Aligned {
+        pairs,
+        sim3,
+        t_gtworld_estworld,
+    } = align(gt, est, opts)?;
     let gt_poses: Vec<Isometry3<f64>> = pairs.iter().map(|p| p.t_world_body_gt).collect();
     let est_aligned: Vec<Isometry3<f64>> = pairs
         .iter()

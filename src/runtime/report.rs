@@ -4,9 +4,11 @@
 use super::map_depth::{KeyframeDepthError, median};
 use super::odometry::Phase;
 use super::replay::ReplayOutput;
+use crate::dataset::GroundTruth;
 use crate::dataset::{StampedPose, Trajectory};
 use crate::eval::stats::{percentile, sorted};
-use crate::eval::{EvalOptions, EvalReport, evaluate};
+use crate::eval::velocity::velocity_errors;
+use crate::eval::{EvalOptions, EvalReport, alignment, evaluate};
 use crate::tracking::pose_of;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -196,6 +198,13 @@ pub struct ReplayReport {
     pub map_depth_worst_within_10pct: Option<f64>,
     /// Sim3 scale error and SE3 ATE of the trajectory up to every 10 s (from the first pose).
     pub scale_error_over_time: Vec<ScaleAt>,
+    /// Norm of the error of the velocity the odometry outputs (what ODOMETRY #331 sends), against
+    /// the ground truth's recorded velocity, after the SE3 alignment of the poses
+    /// ([`crate::eval::velocity`]), m/s; `None` when the ground truth has no velocity column.
+    pub velocity_rmse_m_s: Option<f64>,
+    pub velocity_median_m_s: Option<f64>,
+    pub velocity_p90_m_s: Option<f64>,
+    pub velocity_max_m_s: Option<f64>,
     /// The odometry's accelerometer bias (body), per axis the median over its tracked frames,
     /// m/s²; `None` if no frame was tracked.
     pub accel_bias_est_m_s2: Option<[f64; 3]>,
@@ -426,6 +435,10 @@ impl ReplayReport {
             map_depth_abs_median_pct: None,
             map_depth_worst_within_10pct: None,
             scale_error_over_time: Vec::new(),
+            velocity_rmse_m_s: None,
+            velocity_median_m_s: None,
+            velocity_p90_m_s: None,
+            velocity_max_m_s: None,
             accel_bias_est_m_s2: (!tracked.is_empty()).then(|| {
                 std::array::from_fn(|k| {
                     percentile(
@@ -461,6 +474,27 @@ impl ReplayReport {
         self.accel_bias_error_m_s2 = self
             .accel_bias_est_m_s2
             .map(|e| (nalgebra::Vector3::from(e) - gt_m_s2).norm());
+    }
+
+    /// Fills the `velocity_*` keys: the velocities of `out`'s frames against `gt`'s, the
+    /// estimate's world turned into the ground truth's by the SE3 alignment of `est` (`out`'s
+    /// trajectory) onto `gt`'s poses. Left `None` when either gives nothing.
+    pub fn set_velocity_errors(&mut self, gt: &GroundTruth, est: &Trajectory, out: &ReplayOutput) {
+        let opts = EvalOptions::default();
+        let Ok(align) = alignment(&gt.trajectory(), est, &opts) else {
+            return;
+        };
+        let v: Vec<_> = out
+            .frames
+            .iter()
+            .map(|r| (r.t, r.state.nav.v_world_m_s))
+            .collect();
+        if let Some(e) = velocity_errors(&gt.states, &v, &align, opts.max_dt_ns) {
+            self.velocity_rmse_m_s = Some(e.rmse_m_s);
+            self.velocity_median_m_s = Some(e.median_m_s);
+            self.velocity_p90_m_s = Some(e.p90_m_s);
+            self.velocity_max_m_s = Some(e.max_m_s);
+        }
     }
 
     /// Fills the `map_depth_*` keys from the keyframes' depth errors.
@@ -840,6 +874,12 @@ impl ReplayReport {
             );
             if let Some(r) = e.rpe_1m_trans_rmse_m {
                 row("RPE 1 m", format!("{r:.4} m"));
+            }
+            if let (Some(rmse), Some(p90)) = (self.velocity_rmse_m_s, self.velocity_p90_m_s) {
+                row(
+                    "velocity error",
+                    format!("{rmse:.4} m/s RMSE, {p90:.4} m/s p90"),
+                );
             }
             row(
                 "evaluated",
