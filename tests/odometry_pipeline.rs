@@ -327,6 +327,41 @@ fn refinements_applied_frames_late_keep_replays_identical() {
     assert!(a.frames.iter().all(|r| r.state.is_finite()));
 }
 
+/// An in-flight keyframe adjustment that comes back with its last view's velocity moved beyond
+/// `[keyframe_bundle] max_velocity_change_m_s` from where tracking had it is not applied: the
+/// keyframe is installed as the mapper built it and tracking goes on from its own state.
+#[test]
+fn keyframe_adjustments_that_move_the_velocity_too_far_are_not_applied() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions {
+        max_seconds: Some(4.5),
+        ..Default::default()
+    };
+    let a = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let changes = &a.odometry.keyframe_bundle_velocity_changes_m_s;
+    println!("velocity changes of the adjustments, m/s: {changes:.4?}");
+    assert!(!changes.is_empty(), "no keyframe adjusted");
+    assert!(changes.iter().all(|c| c.is_finite() && *c >= 0.0));
+    // Within the default limit on this clean take-off: every one applied.
+    assert_eq!(a.odometry.refinements_rejected, 0);
+    assert_eq!(changes.len(), a.odometry.keyframe_bundle_s.len());
+    // A limit below any change: every adjustment comes back and none is applied.
+    opts.keyframe_bundle.max_velocity_change_m_s = 1e-9;
+    let b = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let n = b.odometry.keyframe_bundle_velocity_changes_m_s.len();
+    assert!(n > 0);
+    assert_eq!(b.odometry.refinements_rejected, n);
+    assert!(b.odometry.keyframe_bundle_s.is_empty());
+    assert!(b.odometry.tracking_since.is_some());
+    assert!(b.frames.iter().all(|r| r.state.is_finite()));
+    let e = eval_against_truth(&dir, &b);
+    println!(
+        "{n} adjustments rejected, ATE {:.2} cm without them (with them {:.2} cm)",
+        e.ate_rmse_m * 100.0,
+        eval_against_truth(&dir, &a).ate_rmse_m * 100.0
+    );
+}
+
 #[test]
 fn black_frames_lose_tracking_and_it_recovers_with_a_reset() {
     let dir = takeoff();

@@ -151,6 +151,11 @@ pub struct ReplayReport {
     /// m/s² (a diagnostic: the bias's own random walk allows millimetres per second squared).
     pub keyframe_bundle_accel_bias_jump_p50_m_s2: f64,
     pub keyframe_bundle_accel_bias_jump_max_m_s2: f64,
+    /// Median and largest change of the last view's velocity an adjustment came back with, m/s,
+    /// and the adjustments not applied for it (`[keyframe_bundle] max_velocity_change_m_s`).
+    pub keyframe_bundle_velocity_change_p50_m_s: f64,
+    pub keyframe_bundle_velocity_change_max_m_s: f64,
+    pub refinements_rejected: usize,
     pub refinements_dropped: usize,
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
@@ -290,6 +295,12 @@ impl ReplayReport {
                 .iter()
                 .copied(),
         );
+        let kb_dv = sorted(
+            out.odometry
+                .keyframe_bundle_velocity_changes_m_s
+                .iter()
+                .copied(),
+        );
         let recoveries = out.recoveries();
         let mut phases = BTreeMap::new();
         for p in &out.phases {
@@ -406,6 +417,9 @@ impl ReplayReport {
             keyframe_bundle_depth_change_median_pct: percentile(&kb_change, 50.0),
             keyframe_bundle_accel_bias_jump_p50_m_s2: percentile(&kb_bias, 50.0),
             keyframe_bundle_accel_bias_jump_max_m_s2: kb_bias.last().copied().unwrap_or(0.0),
+            keyframe_bundle_velocity_change_p50_m_s: percentile(&kb_dv, 50.0),
+            keyframe_bundle_velocity_change_max_m_s: kb_dv.last().copied().unwrap_or(0.0),
+            refinements_rejected: out.odometry.refinements_rejected,
             refinements_dropped: out.odometry.refinements_dropped,
             refinements_discarded: out.odometry.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.odometry.catch_up_frames,
@@ -836,15 +850,19 @@ impl ReplayReport {
                 "keyframe adjustments",
                 format!(
                     "{}, ms p50/max {:.0} / {:.0}, depth change median {:.1} %, accel bias \
-                     jump p50/max {:.3} / {:.3} m/s², dropped {}, discarded {}",
+                     jump p50/max {:.3} / {:.3} m/s², velocity change p50/max {:.3} / {:.3} \
+                     m/s, dropped {}, discarded {}, rejected {}",
                     self.keyframe_bundles,
                     self.keyframe_bundle_ms_p50,
                     self.keyframe_bundle_ms_max,
                     self.keyframe_bundle_depth_change_median_pct,
                     self.keyframe_bundle_accel_bias_jump_p50_m_s2,
                     self.keyframe_bundle_accel_bias_jump_max_m_s2,
+                    self.keyframe_bundle_velocity_change_p50_m_s,
+                    self.keyframe_bundle_velocity_change_max_m_s,
                     self.refinements_dropped,
-                    self.refinements_discarded
+                    self.refinements_discarded,
+                    self.refinements_rejected
                 ),
             );
         }

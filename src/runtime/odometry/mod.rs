@@ -498,6 +498,12 @@ pub struct OdometryStats {
     /// tracker's), m/s². The bias should move by its random walk (~0.003 m/s² per √s on the
     /// EuRoC IMU); jumps of tenths mean the adjustment explains a pose or depth error with it.
     pub keyframe_bundle_accel_bias_jumps_m_s2: Vec<f64>,
+    /// Norm of the change of the last view's velocity of each keyframe adjustment that came back
+    /// (its adjusted state minus the one tracking had), applied or not, m/s.
+    pub keyframe_bundle_velocity_changes_m_s: Vec<f64>,
+    /// Keyframe adjustments not applied because they moved that velocity by more than
+    /// `[keyframe_bundle] max_velocity_change_m_s`.
+    pub refinements_rejected: usize,
     /// Take-off refinements and keyframe adjustments not started: their thread was still busy
     /// (real time).
     pub refinements_dropped: usize,

@@ -287,11 +287,23 @@ impl Odometry {
             self.stats.refinements_discarded += 1; // lost meanwhile
             return;
         }
-        let Some(a) = adjusted.filter(|a| {
+        let mut adjusted = adjusted.filter(|a| {
             a.last_view.is_finite()
                 && a.median_inv_depth_ratio.is_finite()
                 && a.median_inv_depth_ratio > 0.0
-        }) else {
+        });
+        if let Some(a) = &adjusted {
+            let dv_m_s = (a.last_view.nav.v_world_m_s - tracked_last.nav.v_world_m_s).norm();
+            self.stats.keyframe_bundle_velocity_changes_m_s.push(dv_m_s);
+            // (A keyframe tracked with guessed depths is rescaled by its adjustment, velocity
+            // and all: not limited.)
+            let max_m_s = self.cfg.keyframe_bundle.max_velocity_change_m_s;
+            if !tracked && max_m_s > 0.0 && dv_m_s > max_m_s {
+                self.stats.refinements_rejected += 1;
+                adjusted = None;
+            }
+        }
+        let Some(a) = adjusted else {
             if !tracked {
                 self.install_keyframe(unadjusted, snapshot, true, false, false);
             }
