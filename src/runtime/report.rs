@@ -4,8 +4,7 @@
 use super::map_depth::{KeyframeDepthError, median};
 use super::odometry::Phase;
 use super::replay::ReplayOutput;
-use crate::dataset::GroundTruth;
-use crate::dataset::{StampedPose, Trajectory};
+use crate::dataset::{GroundTruth, StampedPose, Trajectory};
 use crate::eval::stats::{percentile, sorted};
 use crate::eval::velocity::velocity_errors;
 use crate::eval::{EvalOptions, EvalReport, alignment, evaluate};

@@ -499,7 +499,7 @@ pub struct OdometryStats {
     /// EuRoC IMU); jumps of tenths mean the adjustment explains a pose or depth error with it.
     pub keyframe_bundle_accel_bias_jumps_m_s2: Vec<f64>,
     /// Norm of the change of the last view's velocity of each keyframe adjustment that came back
-    /// (its adjusted state minus the one tracking had), applied or not, m/s.
+    /// with a finite result (its adjusted state minus the one tracking had), applied or not, m/s.
     pub keyframe_bundle_velocity_changes_m_s: Vec<f64>,
     /// Keyframe adjustments not applied because they moved that velocity by more than
     /// `[keyframe_bundle] max_velocity_change_m_s`.
