@@ -100,14 +100,14 @@ pub struct KeyframeBundleConfig {
     pub gyro_turn_min_rad: f64,
     /// An adjustment that moves its last view's velocity by more than this from where tracking
     /// had it is not applied (the keyframe is installed as the mapper built it, and tracking goes
-    /// on from its own state), m/s; 0 = no limit. 0.3: S-V101's adjustments move it by 0.025 m/s
-    /// median and at most 0.10 (seed 2) except for the one below. The adjustment holds the keyframe's velocity to
+    /// on from its own state), m/s; 0 = no limit. The adjustment holds the keyframe's velocity to
     /// the window's within `velocity_std_m_s` and chains the views by the IMU, so a last view
-    /// moved by tenths of a m/s in a fraction of a second means a map it could not fit (S-V101
-    /// seed 4: a keyframe of 1290 points started after a failed return moved it by 0.76 m/s,
-    /// the flight controller got 0.8–1.0 m/s off for 4 frames and then a 0.46 m jump back;
-    /// docs/odometry-log.md, *A keyframe adjustment that moves the velocity by metres per
-    /// second*).
+    /// moved by tenths of a m/s in a fraction of a second means a map it could not fit. 0.3:
+    /// S-V101's adjustments move it by 0.025 m/s median, at most 0.10 on seed 2; on seed 4 a
+    /// keyframe of 1290 points started after a failed return moved it by 0.76 m/s, and the
+    /// flight controller got 0.8–1.0 m/s off for 4 frames and then a 0.46 m jump back
+    /// (docs/odometry-log.md, *What the flight controller gets: the velocity, and an adjustment
+    /// that threw it*).
     pub max_velocity_change_m_s: f64,
 }
 
