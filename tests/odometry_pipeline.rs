@@ -224,6 +224,25 @@ fn a_freer_gyro_bias_walk_reaches_the_estimate() {
     assert_metric_takeoff(&dir, &b, "take-off with a freer gyro bias walk");
 }
 
+/// `[tracking] keyframe_max_age_s` reaches the odometry: with a 0.3 s limit keyframes are started
+/// at it (counted in `aged_keyframes`), there are more of them than without, and the take-off is
+/// still metric.
+#[test]
+fn a_keyframe_age_limit_starts_keyframes_at_it() {
+    let (dir, a, b) = takeoff_replayed_with(|o| o.tracker.keyframe_max_age_s = 0.3);
+    println!(
+        "take-off keyframes: {} ({} at the age limit) by default, {} ({} at the age limit) with \
+         a 0.3 s limit",
+        a.odometry.keyframes,
+        a.odometry.aged_keyframes,
+        b.odometry.keyframes,
+        b.odometry.aged_keyframes
+    );
+    assert!(b.odometry.aged_keyframes > 0);
+    assert!(b.odometry.keyframes > a.odometry.keyframes);
+    assert_metric_takeoff(&dir, &b, "take-off with a 0.3 s keyframe age limit");
+}
+
 /// `replay --mapping-poses gt` (a diagnostic): the mapper's views reach it posed by the truth's
 /// motion from their keyframe — the replay changes, the maps triangulated from it are within 3 %
 /// of the true depth and the take-off stays metric — and a replay without a mapper refuses it.

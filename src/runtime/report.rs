@@ -43,6 +43,9 @@ pub struct ReplayReport {
     /// Keyframes of turns on the spot made by the tracking thread without waiting for the mapper
     /// (`[bootstrap] fill_without_mapper`).
     pub spot_turn_keyframes: usize,
+    /// New keyframes started when the keyframe tracked had reached `[tracking]
+    /// keyframe_max_age_s`.
+    pub aged_keyframes: usize,
     /// Stored keyframes that failed their probation while the keyframe left for them was out of
     /// view: a new keyframe was started instead of going back (`[reuse] return_min_overlap`).
     pub returns_out_of_view: usize,
@@ -337,6 +340,7 @@ impl ReplayReport {
             chain_retracks: out.odometry.chain_retracks,
             keyframes_stored: out.odometry.keyframes_stored,
             spot_turn_keyframes: out.odometry.spot_turn_keyframes,
+            aged_keyframes: out.odometry.aged_keyframes,
             returns_out_of_view: out.odometry.returns_out_of_view,
             zero_velocity_updates: out.odometry.zero_velocity_updates,
             takeoff_scale_corrections: out.odometry.takeoff_scales.clone(),
@@ -600,6 +604,10 @@ impl ReplayReport {
         row(
             "turn keyframes (tracker)",
             self.spot_turn_keyframes.to_string(),
+        );
+        row(
+            "keyframes at the age limit",
+            self.aged_keyframes.to_string(),
         );
         row(
             "failed returns, left out of view",

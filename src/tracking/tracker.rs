@@ -338,6 +338,7 @@ impl Tracker {
             &res,
             self.cfg.keyframe_max_baseline_ratio,
             self.cfg.keyframe_max_rotation_rad,
+            self.cfg.keyframe_max_age_s,
         );
         res.time_s = started.elapsed().as_secs_f64();
         res
@@ -355,13 +356,15 @@ impl Tracker {
 
     /// The keyframe policy for the frame of `res` (the current state): a new keyframe when too
     /// little of the keyframe is in view, the frame is farther from it than
-    /// `max_baseline_ratio` × its median depth or turned by more than `max_rotation_rad`, or
-    /// too few points are inliers. `false` without a keyframe or for an untextured frame.
+    /// `max_baseline_ratio` × its median depth or turned by more than `max_rotation_rad`, the
+    /// keyframe is older than `max_age_s` (0 = no limit), or too few points are inliers. `false`
+    /// without a keyframe or for an untextured frame.
     pub fn wants_keyframe(
         &self,
         res: &TrackResult,
         max_baseline_ratio: f64,
         max_rotation_rad: f64,
+        max_age_s: f64,
     ) -> bool {
         let Some(kf) = &self.keyframe else {
             return false;
@@ -374,6 +377,7 @@ impl Tracker {
         res.overlap < self.cfg.keyframe_min_overlap
             || baseline > max_baseline_ratio
             || t_kc.rotation.angle() > max_rotation_rad
+            || (max_age_s > 0.0 && res.t.ns_since(kf.t) as f64 * 1e-9 > max_age_s)
             || res.flag == Some(FlagReason::FewInliers)
             || self.brightness_collapsed(res)
     }
@@ -769,9 +773,9 @@ mod tests {
 
     /// `collapsed_log_gain`: a solution whose gain relative to the keyframe has fallen below
     /// e^-1 asks for another keyframe (and the odometry leaves a stored keyframe for it); a flagged
-    /// frame or the option off does not.
+    /// frame or the option off does not. A keyframe older than the age limit asks for another.
     #[test]
-    fn a_collapsing_brightness_asks_for_another_keyframe() {
+    fn a_collapsing_brightness_or_an_old_keyframe_asks_for_another() {
         let cam = CameraModel::euroc_cam0();
         let state = FrameState {
             nav: crate::imu::NavState {
@@ -819,11 +823,14 @@ mod tests {
         res.inlier_ratio = 0.9;
         res.log_gain = -0.5;
         assert!(!tracker.brightness_collapsed(&res));
-        assert!(!tracker.wants_keyframe(&res, 1.0, 1.0));
-        // …unless the gain collapses (e^-1.2 with everything else as good).
+        assert!(!tracker.wants_keyframe(&res, 1.0, 1.0, 0.0));
+        // …unless the keyframe is older than the age limit (50 ms after it here).
+        assert!(!tracker.wants_keyframe(&res, 1.0, 1.0, 0.051));
+        assert!(tracker.wants_keyframe(&res, 1.0, 1.0, 0.049));
+        // …or the gain collapses (e^-1.2 with everything else as good).
         res.log_gain = -1.2;
         assert!(tracker.brightness_collapsed(&res));
-        assert!(tracker.wants_keyframe(&res, 1.0, 1.0));
+        assert!(tracker.wants_keyframe(&res, 1.0, 1.0, 0.0));
         // A flagged frame's brightness is not a solution.
         res.flag = Some(FlagReason::ImuInconsistent);
         assert!(!tracker.brightness_collapsed(&res));
@@ -831,7 +838,7 @@ mod tests {
         // Off.
         tracker.cfg.collapsed_log_gain = 0.0;
         assert!(!tracker.brightness_collapsed(&res));
-        assert!(!tracker.wants_keyframe(&res, 1.0, 1.0));
+        assert!(!tracker.wants_keyframe(&res, 1.0, 1.0, 0.0));
     }
 
     /// The photometric Jacobian w.r.t. the body increment, `J_ε Ad(T_kb)`, against numeric

@@ -474,6 +474,9 @@ pub struct OdometryStats {
     pub reinit_guessed_keyframes: usize,
     /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
     pub spot_turn_keyframes: usize,
+    /// New keyframes started when the keyframe tracked had reached `[tracking]
+    /// keyframe_max_age_s` (possibly with another reason as well).
+    pub aged_keyframes: usize,
     /// Stored keyframes that failed their probation where the keyframe left was out of view
     /// (`[reuse] return_min_overlap`): a new keyframe was started instead of going back.
     pub returns_out_of_view: usize,
@@ -1040,6 +1043,7 @@ impl Odometry {
                         &result,
                         r.max_baseline_ratio,
                         r.max_rotation_rad,
+                        0.0,
                     );
                 }
                 let r = &self.cfg.reuse;
@@ -1128,6 +1132,15 @@ impl Odometry {
                             scale_std: e.scale_std,
                             rms_m: e.rms_m,
                         });
+                    }
+                    let max_age_s = self.cfg.tracking.keyframe_max_age_s;
+                    if max_age_s > 0.0
+                        && self
+                            .tracker
+                            .keyframe()
+                            .is_some_and(|kf| t.secs_since(kf.t) > max_age_s)
+                    {
+                        self.stats.aged_keyframes += 1;
                     }
                     let history: Vec<MapFrame> = self.history.iter().cloned().collect();
                     let propagate = self.cfg.bootstrap.propagate_maps;
