@@ -1036,7 +1036,9 @@ impl Odometry {
                 }
                 if self.reusing {
                     // A stored keyframe is not there to be triangulated (a new one would only
-                    // chain the drift again): the baseline and rotation limits of `[reuse]`.
+                    // chain the drift again): the baseline and rotation limits of `[reuse]`, and
+                    // no age limit (its map is not the chain's newest, whose scale the age limit
+                    // has the window read).
                     self.reuse_frames += 1;
                     let r = &self.cfg.reuse;
                     result.wants_keyframe = self.tracker.wants_keyframe(
