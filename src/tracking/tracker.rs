@@ -344,6 +344,16 @@ impl Tracker {
         res
     }
 
+    /// The keyframe tracked is older than `max_age_s` at time `t` (`false` for 0 = no limit, or
+    /// without a keyframe): the age rule of [`Self::wants_keyframe`].
+    pub fn keyframe_older_than(&self, t: TimeNs, max_age_s: f64) -> bool {
+        max_age_s > 0.0
+            && self
+                .keyframe
+                .as_ref()
+                .is_some_and(|kf| t.secs_since(kf.t) > max_age_s)
+    }
+
     /// The current frame has too little texture to be aligned (`min_textured_fraction`).
     fn untextured(&self) -> bool {
         let level = self
@@ -377,7 +387,7 @@ impl Tracker {
         res.overlap < self.cfg.keyframe_min_overlap
             || baseline > max_baseline_ratio
             || t_kc.rotation.angle() > max_rotation_rad
-            || (max_age_s > 0.0 && res.t.ns_since(kf.t) as f64 * 1e-9 > max_age_s)
+            || self.keyframe_older_than(res.t, max_age_s)
             || res.flag == Some(FlagReason::FewInliers)
             || self.brightness_collapsed(res)
     }

@@ -1135,12 +1135,9 @@ impl Odometry {
                             rms_m: e.rms_m,
                         });
                     }
-                    let max_age_s = self.cfg.tracking.keyframe_max_age_s;
-                    if max_age_s > 0.0
-                        && self
-                            .tracker
-                            .keyframe()
-                            .is_some_and(|kf| t.secs_since(kf.t) > max_age_s)
+                    if self
+                        .tracker
+                        .keyframe_older_than(t, self.cfg.tracking.keyframe_max_age_s)
                     {
                         self.stats.aged_keyframes += 1;
                     }
