@@ -184,6 +184,40 @@ fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
     assert_metric_takeoff(&dir, &b, "take-off with the measured noise");
 }
 
+/// `[bootstrap] rest_gyro_rotation_noise` (on by default): from the take-off on, the rotation part
+/// of the keyframe window's and the keyframe adjustment's IMU factors is weighted by the gyro's
+/// noise measured on the pad (its ratio to `sensor.yaml`, at least 1); off, by 1. The factor on
+/// top of it (`imu_rotation_noise_factor`) reaches the estimate, and the take-off stays metric.
+#[test]
+fn the_back_ends_gyro_rotation_is_weighted_by_the_pads_measurement() {
+    let (dir, on, off) = takeoff_replayed_with(|o| o.bootstrap.rest_gyro_rotation_noise = false);
+    let (d_on, d_off) = (
+        on.odometry.rest_imu_density.expect("rest measured"),
+        off.odometry.rest_imu_density.expect("rest measured"),
+    );
+    assert_eq!(d_on.gyro_ratio, d_off.gyro_ratio);
+    assert!((d_on.rotation_noise_scale - d_on.gyro_ratio.max(1.0)).abs() < 1e-12);
+    assert_eq!(d_off.rotation_noise_scale, 1.0);
+    println!(
+        "rest gyro ratio {:.2}: back end's rotation noise x{:.2}",
+        d_on.gyro_ratio, d_on.rotation_noise_scale
+    );
+    let (_, _, wide) = takeoff_replayed_with(|o| {
+        o.window.imu_rotation_noise_factor = 5.0;
+        o.keyframe_bundle.imu_rotation_noise_factor = 5.0;
+    });
+    assert_trajectories_differ(
+        &on,
+        &wide,
+        "the rotation noise factor did not reach the estimate",
+    );
+    assert_metric_takeoff(
+        &dir,
+        &wide,
+        "take-off with the back end's gyro rotation noise x5",
+    );
+}
+
 /// The take-off replayed with the default options and with `change` applied to them.
 fn takeoff_replayed_with(
     change: impl FnOnce(&mut ReplayOptions),

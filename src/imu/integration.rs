@@ -100,6 +100,20 @@ impl Preintegration {
         }
     }
 
+    /// Multiplies the rotation rows and columns of the noise covariance by `factor` (`D Σ D`,
+    /// `D = diag(factor·I₃, I₆)`): the rotation's variance by `factor²`, its correlation with the
+    /// velocity and position kept. A gyro whose error wanders over seconds (a real one on a
+    /// vibrating airframe, or one turned against the camera) is then weighed by that error
+    /// where the velocity and position, which carry the metric scale, keep the white noise.
+    pub fn scale_rotation_noise(&mut self, factor: f64) {
+        for k in 0..3 {
+            for c in 0..9 {
+                self.cov[(k, c)] *= factor;
+                self.cov[(c, k)] *= factor;
+            }
+        }
+    }
+
     /// Integration time Δt, s.
     pub fn dt_s(&self) -> f64 {
         self.t_end.secs_since(self.t_start)
@@ -412,6 +426,37 @@ mod tests {
             ana.fixed_view_mut::<3, 3>(6, 0).copy_from(&p0.d_p_d_ba);
         }
         (num, ana)
+    }
+
+    #[test]
+    fn rotation_noise_scales_the_rotation_block_only() {
+        let s = samples(&ImuBias::default(), 0.5, 200.0);
+        let mut p = Preintegration::new(TimeNs(0), ImuBias::default());
+        p.integrate(
+            &s,
+            TimeNs::from_secs_f64(0.5),
+            Some(&ImuNoise::euroc_adis16448()),
+        );
+        let before = p.cov;
+        p.scale_rotation_noise(5.0);
+        for r in 0..9 {
+            for c in 0..9 {
+                let k = match (r < 3, c < 3) {
+                    (true, true) => 25.0,
+                    (false, false) => 1.0,
+                    _ => 5.0,
+                };
+                let want = k * before[(r, c)];
+                assert!(
+                    (p.cov[(r, c)] - want).abs() <= 1e-12 * want.abs().max(1e-30),
+                    "({r}, {c}): {} against {want}",
+                    p.cov[(r, c)]
+                );
+            }
+        }
+        // The rotation–velocity coupling the preintegration builds is there to be scaled.
+        assert!(before.fixed_view::<3, 3>(3, 0).norm() > 0.0);
+        assert!(p.cov.cholesky().is_some());
     }
 
     #[test]

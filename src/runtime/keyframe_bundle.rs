@@ -55,6 +55,9 @@ pub struct KeyframeBundleConfig {
     pub depth_rel_std: f64,
     /// The IMU white noise of the tracker (`[tracking] imu_noise_scale`) is multiplied by this.
     pub imu_noise_factor: f64,
+    /// The rotation part of that noise is multiplied by this on top
+    /// ([`crate::imu::Preintegration::scale_rotation_noise`]; 1 = as the rest).
+    pub imu_rotation_noise_factor: f64,
     /// The adjusted keyframe is installed this many frames after its adjustment started (0 =
     /// before the next frame is tracked): offline exactly, in real time at the earliest (later if
     /// the adjustment takes longer). Until then the previous keyframe is tracked.
@@ -123,6 +126,7 @@ impl Default for KeyframeBundleConfig {
             smoothness_scale_neutral: false,
             depth_rel_std: 0.05,
             imu_noise_factor: 0.1,
+            imu_rotation_noise_factor: 1.0,
             lag_frames: 0,
             guessed_min_baseline_ratio: 0.1,
             guessed_max_views: 10,
@@ -285,7 +289,8 @@ pub fn bundle_adjust_keyframe(
         inflate,
     )
     .into_iter()
-    .map(|p| {
+    .map(|mut p| {
+        p.scale_rotation_noise(cfg.imu_rotation_noise_factor);
         if rec.gyro_turn_rad == Vector3::zeros() {
             p
         } else {

@@ -54,6 +54,9 @@ pub struct KeyframeJob {
     /// The IMU noise to integrate them with (the odometry's, which the pad's measurement may
     /// have replaced since the thread started).
     pub noise: ImuNoise,
+    /// `[keyframe_bundle] imu_rotation_noise_factor` is multiplied by this (the pad's measurement
+    /// of the gyro, `[bootstrap] rest_gyro_rotation_noise`).
+    pub rotation_noise_scale: f64,
     /// The depths are not held to the mapper's (`depth_rel_std` not applied): their scale is what
     /// is in doubt (a keyframe tracked with guessed depths).
     pub free_depths: bool,
@@ -206,20 +209,18 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
 }
 
 fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyframe> {
-    let free;
-    let cfg = if job.free_depths {
-        let base = &s.keyframe_bundle;
-        free = KeyframeBundleConfig {
-            depth_rel_std: 0.0,
-            velocity_std_m_s: job.start_velocity_std_m_s.unwrap_or(base.velocity_std_m_s),
-            smoothness_scale_neutral: job.start_velocity_std_m_s.is_some()
-                || base.smoothness_scale_neutral,
-            ..base.clone()
-        };
-        &free
-    } else {
-        &s.keyframe_bundle
+    let base = &s.keyframe_bundle;
+    let mut cfg = KeyframeBundleConfig {
+        imu_rotation_noise_factor: base.imu_rotation_noise_factor * job.rotation_noise_scale,
+        ..base.clone()
     };
+    if job.free_depths {
+        cfg.depth_rel_std = 0.0;
+        cfg.velocity_std_m_s = job.start_velocity_std_m_s.unwrap_or(base.velocity_std_m_s);
+        cfg.smoothness_scale_neutral =
+            job.start_velocity_std_m_s.is_some() || base.smoothness_scale_neutral;
+    }
+    let cfg = &cfg;
     let a = bundle_adjust_keyframe(
         &job.rec,
         &job.kf,

@@ -28,6 +28,9 @@ pub struct ReplayReport {
     pub frames_in: usize,
     pub frames_tracked: usize,
     pub frames_flagged: usize,
+    /// Tracked frames solved again with the photometric term down-weighted (`[tracking]
+    /// vision_downweight_chi2`).
+    pub frames_downweighted: usize,
     /// Flag counts by reason.
     pub flags: BTreeMap<String, usize>,
     pub keyframes: usize,
@@ -94,6 +97,10 @@ pub struct ReplayReport {
     /// `[tracking] imu_noise_scale` when that is off.
     pub imu_gyro_noise_scale: Option<f64>,
     pub imu_accel_noise_scale: Option<f64>,
+    /// The factor on the rotation part of the keyframe window's and the keyframe adjustment's IMU
+    /// factors after the take-off (`[bootstrap] rest_gyro_rotation_noise`; 1 when off), on top
+    /// of their `imu_rotation_noise_factor`.
+    pub imu_rotation_noise_scale: Option<f64>,
     /// Re-initialisations after tracking loss.
     pub resets: u32,
     /// Of `resets`, losses of the image (a covered lens) that resumed tracking on the keyframe
@@ -333,6 +340,7 @@ impl ReplayReport {
             frames_in: out.frames_in,
             frames_tracked: out.frames.len() - flagged,
             frames_flagged: flagged,
+            frames_downweighted: out.frames.iter().filter(|r| r.downweighted).count(),
             flags,
             keyframes: out.odometry.keyframes,
             keyframe_reuses: out.odometry.keyframe_reuses,
@@ -383,6 +391,7 @@ impl ReplayReport {
             rest_accel_density_ratio: rest.map(|d| d.accel_ratio).filter(|r| r.is_finite()),
             imu_gyro_noise_scale: rest.map(|d| d.gyro_scale),
             imu_accel_noise_scale: rest.map(|d| d.accel_scale),
+            imu_rotation_noise_scale: rest.map(|d| d.rotation_noise_scale),
             init_time_s: match (out.odometry.onset_t, out.odometry.tracking_since) {
                 (Some(a), Some(b)) => Some(b.secs_since(a)),
                 _ => None,
@@ -590,6 +599,10 @@ impl ReplayReport {
             "frames flagged",
             format!("{} {:?}", self.frames_flagged, self.flags),
         );
+        row(
+            "frames with vision down-weighted",
+            self.frames_downweighted.to_string(),
+        );
         row("keyframes", self.keyframes.to_string());
         row(
             "keyframe returns (failed, re-tracked) / stored",
@@ -673,6 +686,12 @@ impl ReplayReport {
             row(
                 "IMU noise weighted",
                 format!("gyro {g:.2}×, accel {a:.2}× sensor.yaml"),
+            );
+        }
+        if let Some(r) = self.imu_rotation_noise_scale {
+            row(
+                "back end's gyro rotation noise",
+                format!("{r:.2}× its setting"),
             );
         }
         if let Some(s) = self.init_time_s {
@@ -953,19 +972,20 @@ pub fn trajectory(out: &ReplayOutput) -> Trajectory {
 }
 
 /// Per-frame diagnostics as CSV (`frames.csv`): time, flag, iterations per level, inlier ratio,
-/// overlap, residual RMS, IMU χ², keyframe, tracking time, position, velocity and biases.
+/// overlap, residual RMS, IMU χ², keyframe, tracking time, position, velocity, biases,
+/// brightness and whether vision was down-weighted (`[tracking] vision_downweight_chi2`).
 pub fn frames_csv(out: &ReplayOutput) -> String {
     let mut s = String::from(
         "t_ns,phase,flag,iters_l0,iters_l1,iters_l2,iters_l3,inlier_ratio,overlap,residual_rms_gray,\
          imu_chi2,keyframe_id,new_keyframe,tracking_ms,px_m,py_m,pz_m,vx_m_s,vy_m_s,vz_m_s,\
-         bgx_rad_s,bgy_rad_s,bgz_rad_s,bax_m_s2,bay_m_s2,baz_m_s2,log_gain,offset_gray\n",
+         bgx_rad_s,bgy_rad_s,bgz_rad_s,bax_m_s2,bay_m_s2,baz_m_s2,log_gain,offset_gray,downweighted\n",
     );
     for (r, ph) in out.frames.iter().zip(&out.phases) {
         let n = &r.state.nav;
         let b = &r.state.bias;
         s.push_str(&format!(
             "{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{:.3},{},{},{:.3},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},\
-             {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3}\n",
+             {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3},{}\n",
             r.t.0,
             ph.as_str(),
             r.flag.map_or("", |f| f.as_str()),
@@ -994,6 +1014,7 @@ pub fn frames_csv(out: &ReplayOutput) -> String {
             b.accel_m_s2.z,
             r.log_gain,
             r.offset_gray,
+            u8::from(r.downweighted),
         ));
     }
     s

@@ -65,6 +65,9 @@ pub struct WindowConfig {
     pub visual_huber_sigmas: f64,
     /// Multiplies the IMU white-noise densities (as `[tracking] imu_noise_scale`).
     pub imu_noise_scale: f64,
+    /// Multiplies, on top of `imu_noise_scale`, the rotation part of each IMU factor's noise
+    /// ([`crate::imu::Preintegration::scale_rotation_noise`]; 1 = as the rest).
+    pub imu_rotation_noise_factor: f64,
     /// Levenberg-Marquardt iterations per solve.
     pub max_iterations: usize,
     /// Estimate each keyframe map's scale in the window: a log-scale λ per keyframe (its map is
@@ -126,6 +129,7 @@ impl Default for WindowConfig {
             visual_translation_information_scale: 1e-3,
             visual_huber_sigmas: 0.0,
             imu_noise_scale: 3.0,
+            imu_rotation_noise_factor: 1.0,
             max_iterations: 8,
             map_scale: true,
             map_scale_step_std: 0.02,
@@ -225,6 +229,11 @@ pub fn boxminus(x: &FrameState, lin: &FrameState) -> Vector15 {
 }
 
 impl KeyframeWindow {
+    /// Sets `imu_rotation_noise_factor` (from now on: the IMU factors are rebuilt at every solve).
+    pub fn set_imu_rotation_noise_factor(&mut self, factor: f64) {
+        self.cfg.imu_rotation_noise_factor = factor;
+    }
+
     pub fn new(cfg: WindowConfig, noise: ImuNoise) -> Self {
         KeyframeWindow {
             cfg,
@@ -583,6 +592,7 @@ impl KeyframeWindow {
                 };
                 let mut pre_w = pre.clone();
                 pre_w.cov *= self.cfg.imu_noise_scale.powi(2);
+                pre_w.scale_rotation_noise(self.cfg.imu_rotation_noise_factor);
                 let mut cov =
                     imu_residual_covariance(&pre_w, &self.noise, xi, xj, &Matrix15::zeros());
                 for k in 0..15 {

@@ -56,6 +56,15 @@ pub struct TrackerConfig {
     pub min_inlier_ratio: f64,
     /// A frame is flagged if the IMU residual's squared Mahalanobis norm exceeds this (15 dof).
     pub max_imu_chi2: f64,
+    /// A frame whose visual-inertial solution has an IMU residual χ² (15 dof) above this is
+    /// solved again at full resolution with the photometric information scaled by this / χ²
+    /// (dynamic covariance scaling of the visual term), unless the frame before was: a run of
+    /// frames that disagree with the IMU is the state's velocity or bias being off, which the
+    /// images must correct. 0 = never, the default. Over S-V101 (flight median χ² 28, 10 % of
+    /// frames above 100) 100 helped the seeds that lost a stretch to a weakly textured floor but
+    /// tipped take-offs into runaways (seed 10 1.4 m; 2.8 km without the every-other-frame rule);
+    /// docs/odometry-log.md, *The gyro's rotation weighed by its wander*.
+    pub vision_downweight_chi2: f64,
     /// A frame with fewer than this fraction of its pixels on an edge (gradient at least
     /// `min_gradient_gray_px`, at a quarter of the resolution) is not aligned but predicted by the
     /// IMU and flagged `no_texture`: a covered lens or a blinded sensor, which the affine
@@ -136,6 +145,7 @@ impl Default for TrackerConfig {
             collapsed_log_gain: 1.0,
             min_inlier_ratio: 0.25,
             max_imu_chi2: 1000.0,
+            vision_downweight_chi2: 0.0,
             min_textured_fraction: 0.01,
             keyframe_min_overlap: 0.7,
             keyframe_max_baseline_ratio: 0.12,

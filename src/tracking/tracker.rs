@@ -99,6 +99,9 @@ pub struct TrackResult {
     pub residual_rms_gray: f64,
     /// `rᵀ A r` of the IMU residual at the solution (15 dof).
     pub imu_chi2: f64,
+    /// The solution was solved again with the photometric term down-weighted because its IMU
+    /// residual's χ² exceeded `vision_downweight_chi2` (`imu_chi2` is the χ² after that).
+    pub downweighted: bool,
     /// Information of the photometric term alone on frame j's pose increment `[δθ, δt]` (body
     /// frame, eq. 34/36) relative to the keyframe, brightness marginalised; zero if untracked.
     /// The keyframe window uses it for the relative pose keyframe → frame.
@@ -142,6 +145,8 @@ pub struct Tracker {
     cov: Matrix15,
     log_gain: f64,
     offset_gray: f64,
+    /// The last tracked frame was solved with vision down-weighted (`vision_downweight_chi2`).
+    last_downweighted: bool,
     /// `|r|` of the last residual pass (for the noise scale).
     scratch: Vec<f32>,
     /// Inliers of the last residual pass (for its normal equations).
@@ -173,6 +178,7 @@ impl Tracker {
             cov,
             log_gain: 0.0,
             offset_gray: 0.0,
+            last_downweighted: false,
             scratch: Vec::with_capacity(max_pts),
             inliers: Vec::with_capacity(max_pts),
         }
@@ -217,6 +223,7 @@ impl Tracker {
             overlap: 0.0,
             residual_rms_gray: f64::NAN,
             imu_chi2: 0.0,
+            downweighted: false,
             photometric_info: Matrix6::zeros(),
             photometric_step: Vector6::zeros(),
             keyframe_id: self.keyframe.as_ref().map(|k| k.id),
@@ -334,6 +341,7 @@ impl Tracker {
         self.cov = res.covariance;
         self.log_gain = res.log_gain;
         self.offset_gray = res.offset_gray;
+        self.last_downweighted = res.downweighted;
         res.wants_keyframe = self.wants_keyframe(
             &res,
             self.cfg.keyframe_max_baseline_ratio,
@@ -410,8 +418,7 @@ impl Tracker {
     ) -> Option<(FrameState, Matrix15, f64, f64)> {
         let mut x = *x_pred;
         let mut aff = (self.log_gain, self.offset_gray);
-        let mut last: Option<Evaluation> = None;
-        let median_depth = self.keyframe.as_ref().map_or(1.0, |k| k.median_depth_m);
+        let mut last: Option<(Evaluation, f64)> = None;
         for level in (0..NUM_LEVELS).rev() {
             // Photometric noise scale of this level from the residuals at the start state; the
             // same accumulation is then weighted by it.
@@ -422,62 +429,45 @@ impl Tracker {
                 continue;
             }
             let sigma2 = self.robust_sigma2();
-            let mut cur = self.assemble(Some(probe), pre, xi, &x, a_imu, aff, sigma2);
-            let mut lambda = 0.0f64;
-            let f_px = self.cameras[level].fx.max(self.cameras[level].fy);
-            let mut accepted = 0u8;
-            let mut tries = 0usize;
-            while tries < 3 * self.cfg.max_iterations_per_level[level.min(NUM_LEVELS - 1)] {
-                if accepted as usize >= self.cfg.max_iterations_per_level[level] {
-                    break;
-                }
-                tries += 1;
-                let Some((dp, di)) = damped(&cur.sys, lambda).solve_schur() else {
-                    if lambda == 0.0 {
-                        lambda = 1e-4;
-                        continue;
-                    }
-                    res.flag = Some(FlagReason::SolverFailed);
-                    return None;
-                };
-                let (x_new, aff_new) = apply(&x, aff, &dp, &di);
-                // The trial's cost first; its normal equations only if it is accepted.
-                let trial = self.photometric_cost(level, &x_new, aff_new);
-                let new_cost = self.total_cost(
-                    trial.map(|c| c.cost),
-                    pre,
-                    xi,
-                    &x_new,
-                    a_imu,
-                    aff_new,
-                    sigma2,
-                );
-                if new_cost.is_finite() && new_cost <= cur.cost {
-                    let ph = trial.and_then(|c| self.normal_equations_of_last(level, c));
-                    x = x_new;
-                    aff = aff_new;
-                    cur = self.assemble(ph, pre, xi, &x, a_imu, aff, sigma2);
-                    accepted += 1;
-                    lambda = if lambda < 1e-6 { 0.0 } else { lambda * 0.1 };
-                    let step_px = f_px
-                        * (dp.fixed_rows::<3>(0).norm()
-                            + dp.fixed_rows::<3>(3).norm() / median_depth.max(1e-3));
-                    if step_px < self.cfg.convergence_px {
-                        break;
-                    }
-                } else {
-                    lambda = if lambda == 0.0 { 1e-4 } else { lambda * 10.0 };
-                    if lambda > 1e3 {
-                        break;
-                    }
-                }
-            }
+            let start = self.assemble(Some(probe), pre, xi, &x, a_imu, aff, sigma2);
+            let Some((cur, accepted)) =
+                self.gauss_newton_level(level, start, pre, xi, a_imu, &mut x, &mut aff, sigma2)
+            else {
+                res.flag = Some(FlagReason::SolverFailed);
+                return None;
+            };
             res.iterations[level] = accepted;
             if level == 0 {
-                last = Some(cur);
+                last = Some((cur, sigma2));
             }
         }
-        let Some(fin) = last else {
+        // Dynamic covariance scaling of the visual term (Agarwal et al., ICRA 2013): a solution
+        // whose IMU residual (eq. 13) has χ² above `vision_downweight_chi2` is solved again at
+        // full resolution with the photometric information scaled by `vision_downweight_chi2 /
+        // χ²` — over a frame interval the IMU is the better witness of translation, and a
+        // photometric optimum pulled off by a straight edge or a biased map should not carry the
+        // state (and its velocity) with it at full weight.
+        let phi = self.cfg.vision_downweight_chi2;
+        if let Some((fin, sigma2)) = last.take() {
+            let chi2 = fin.r_imu.dot(&(a_imu * fin.r_imu));
+            last = Some((fin, sigma2));
+            if phi > 0.0 && chi2 > phi && chi2.is_finite() && !self.last_downweighted {
+                let sigma2_w = sigma2 * (chi2 / phi);
+                if let Some(probe) = self.photometric(0, &x, aff) {
+                    let start = self.assemble(Some(probe), pre, xi, &x, a_imu, aff, sigma2_w);
+                    let Some((cur, accepted)) = self
+                        .gauss_newton_level(0, start, pre, xi, a_imu, &mut x, &mut aff, sigma2_w)
+                    else {
+                        res.flag = Some(FlagReason::SolverFailed);
+                        return None;
+                    };
+                    res.iterations[0] = res.iterations[0].saturating_add(accepted);
+                    res.downweighted = true;
+                    last = Some((cur, sigma2_w));
+                }
+            }
+        }
+        let Some((fin, _)) = last else {
             res.flag = Some(FlagReason::FewInliers);
             return None;
         };
@@ -508,6 +498,75 @@ impl Tracker {
             return None;
         };
         Some((x, cov, aff.0, aff.1))
+    }
+
+    /// Levenberg-damped Gauss-Newton at one pyramid level from `cur` (the evaluation at `x`,
+    /// `aff` with the photometric term weighted by `1/sigma2`): `x` and `aff` are moved to the
+    /// accepted steps. Returns the evaluation at the final state and the accepted iterations;
+    /// `None` if the damped system could not be solved.
+    #[allow(clippy::too_many_arguments)]
+    fn gauss_newton_level(
+        &mut self,
+        level: usize,
+        mut cur: Evaluation,
+        pre: &Preintegration,
+        xi: &FrameState,
+        a_imu: &Matrix15,
+        x: &mut FrameState,
+        aff: &mut (f64, f64),
+        sigma2: f64,
+    ) -> Option<(Evaluation, u8)> {
+        let median_depth = self.keyframe.as_ref().map_or(1.0, |k| k.median_depth_m);
+        let max_iterations = self.cfg.max_iterations_per_level[level.min(NUM_LEVELS - 1)];
+        let mut lambda = 0.0f64;
+        let f_px = self.cameras[level].fx.max(self.cameras[level].fy);
+        let mut accepted = 0u8;
+        let mut tries = 0usize;
+        while tries < 3 * max_iterations {
+            if accepted as usize >= max_iterations {
+                break;
+            }
+            tries += 1;
+            let Some((dp, di)) = damped(&cur.sys, lambda).solve_schur() else {
+                if lambda == 0.0 {
+                    lambda = 1e-4;
+                    continue;
+                }
+                return None;
+            };
+            let (x_new, aff_new) = apply(x, *aff, &dp, &di);
+            // The trial's cost first; its normal equations only if it is accepted.
+            let trial = self.photometric_cost(level, &x_new, aff_new);
+            let new_cost = self.total_cost(
+                trial.map(|c| c.cost),
+                pre,
+                xi,
+                &x_new,
+                a_imu,
+                aff_new,
+                sigma2,
+            );
+            if new_cost.is_finite() && new_cost <= cur.cost {
+                let ph = trial.and_then(|c| self.normal_equations_of_last(level, c));
+                *x = x_new;
+                *aff = aff_new;
+                cur = self.assemble(ph, pre, xi, x, a_imu, *aff, sigma2);
+                accepted += 1;
+                lambda = if lambda < 1e-6 { 0.0 } else { lambda * 0.1 };
+                let step_px = f_px
+                    * (dp.fixed_rows::<3>(0).norm()
+                        + dp.fixed_rows::<3>(3).norm() / median_depth.max(1e-3));
+                if step_px < self.cfg.convergence_px {
+                    break;
+                }
+            } else {
+                lambda = if lambda == 0.0 { 1e-4 } else { lambda * 10.0 };
+                if lambda > 1e3 {
+                    break;
+                }
+            }
+        }
+        Some((cur, accepted))
     }
 
     /// `σ²` of the photometric residual from the last accumulation's MAD, floored.

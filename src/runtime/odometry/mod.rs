@@ -290,6 +290,19 @@ pub struct BootstrapConfig {
     /// 2 / 3 lost (3.4 / 8.9 m; docs/odometry-log.md, *The IMU weighted by the noise its pad
     /// measures*).
     pub rest_imu_noise_factor: f64,
+    /// From the take-off on, the rotation part of the IMU factors of the keyframe window and the
+    /// keyframe adjustment (`imu_rotation_noise_factor` of each) is multiplied by the gyro's
+    /// white-noise density measured on the pad over `sensor.yaml`'s (at least 1,
+    /// [`RestImuDensity::rotation_noise_scale`]). Those factors weigh the gyro at a fixed
+    /// multiple of the datasheet, far above the relative rotations the images give (a 1000th of
+    /// the photometric information), so a gyro that disagrees with the camera by more than that —
+    /// rotor vibration, a wander over seconds — turns the keyframes' attitudes, gravity with
+    /// them, and the velocity and map scale after it. The translation part, which carries the
+    /// metric scale, keeps its weight. On S-V101 (5.9 × on the pad) seeds 1–5 and 8–10 median
+    /// 0.176 → 0.139 m (a fixed 5 everywhere: 0.120 m, but demo seed 13 ran away); the demo
+    /// flights measure 0.96–1.47 × (median of 24 seeds 1.44 → 1.48 cm; docs/odometry-log.md, *The
+    /// gyro's rotation weighed by its wander*).
+    pub rest_gyro_rotation_noise: bool,
 }
 
 /// How the take-off refinement re-poses the first map's views.
@@ -355,6 +368,7 @@ impl Default for BootstrapConfig {
             zupt_max_speed_m_s: 0.1,
             zupt_velocity_std_m_s: 0.005,
             rest_imu_noise_factor: 0.0,
+            rest_gyro_rotation_noise: true,
         }
     }
 }
@@ -571,6 +585,10 @@ pub struct RestImuDensity {
     /// `[tracking] imu_noise_scale` for both when that is off.
     pub gyro_scale: f64,
     pub accel_scale: f64,
+    /// The factor on the rotation part of the keyframe window's and the keyframe adjustment's
+    /// IMU factors from the take-off on: `gyro_ratio` (at least 1) when `[bootstrap]
+    /// rest_gyro_rotation_noise` is on, else 1.
+    pub rotation_noise_scale: f64,
 }
 
 /// At most this many frames are tracked again when a keyframe adjustment comes back late (more:
@@ -742,6 +760,9 @@ pub struct Odometry {
     /// rescaled at the take-off to the ones measured on the pad (`[bootstrap]
     /// rest_imu_noise_factor`) over the tracker's `imu_noise_scale`, which multiplies them again.
     imu_noise: ImuNoise,
+    /// The keyframe adjustment's `imu_rotation_noise_factor` is multiplied by this (the pad's
+    /// measurement, [`RestImuDensity::rotation_noise_scale`]; 1 until then).
+    rotation_noise_scale: f64,
 }
 
 impl Odometry {
@@ -854,6 +875,7 @@ impl Odometry {
             mapper_kf_pose: None,
             vignette_gain,
             imu_noise: rig.noise,
+            rotation_noise_scale: 1.0,
             cfg,
             rig,
         }
@@ -1302,6 +1324,16 @@ impl Odometry {
             }
             _ => (fixed, fixed),
         };
+        let rotation_noise_scale =
+            if self.cfg.bootstrap.rest_gyro_rotation_noise && gyro_ratio.is_finite() {
+                gyro_ratio.max(1.0)
+            } else {
+                1.0
+            };
+        self.rotation_noise_scale = rotation_noise_scale;
+        self.window.set_imu_rotation_noise_factor(
+            self.cfg.window.imu_rotation_noise_factor * rotation_noise_scale,
+        );
         RestImuDensity {
             gyro_rad_s_sqrt_hz: e.gyro_density_rad_s_sqrt_hz,
             accel_m_s2_sqrt_hz: e.accel_density_m_s2_sqrt_hz,
@@ -1309,6 +1341,7 @@ impl Odometry {
             accel_ratio,
             gyro_scale,
             accel_scale,
+            rotation_noise_scale,
         }
     }
 

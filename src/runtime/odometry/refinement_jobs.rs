@@ -120,6 +120,7 @@ impl Odometry {
             pyramid,
             imu,
             noise: self.imu_noise,
+            rotation_noise_scale: self.rotation_noise_scale,
             free_depths: tracked,
             start_velocity_std_m_s: reinit
                 .then_some(self.cfg.bootstrap.reinit_velocity_free_std_m_s),
