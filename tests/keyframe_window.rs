@@ -579,13 +579,10 @@ fn preintegrate_wandering_gyro(
 /// tilt error (deg) and velocity error (m/s) of the newest keyframe over the last 40 solves.
 fn run_wandering_gyro(imu_rotation_noise_factor: f64) -> (f64, f64) {
     let sp = flight();
-    let mut w = KeyframeWindow::new(
-        WindowConfig {
-            imu_rotation_noise_factor,
-            ..WindowConfig::default()
-        },
-        ImuNoise::euroc_adis16448(),
-    );
+    let mut w = window_with(WindowConfig {
+        imu_rotation_noise_factor,
+        ..WindowConfig::default()
+    });
     let t0 = sp.start().add_ns(5_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());

@@ -184,30 +184,41 @@ fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
     assert_metric_takeoff(&dir, &b, "take-off with the measured noise");
 }
 
-/// `[bootstrap] rest_gyro_rotation_noise` (on by default): from the take-off on, the rotation part
-/// of the keyframe window's and the keyframe adjustment's IMU factors is weighted by the gyro's
-/// noise measured on the pad (its ratio to `sensor.yaml`, at least 1); off, by 1. The factor on
-/// top of it (`imu_rotation_noise_factor`) reaches the estimate, and the take-off stays metric.
+/// `[bootstrap] rest_gyro_rotation_noise` (off by default): from the take-off on, the rotation
+/// part of the keyframe window's and the keyframe adjustment's IMU factors is weighted by the
+/// gyro's noise measured on the pad (its ratio to `sensor.yaml`, at least 1); off, by 1. It and
+/// the factor on top of it (`imu_rotation_noise_factor`) reach the estimate, and the take-off
+/// stays metric.
 #[test]
 fn the_back_ends_gyro_rotation_is_weighted_by_the_pads_measurement() {
-    let (dir, on, off) = takeoff_replayed_with(|o| o.bootstrap.rest_gyro_rotation_noise = false);
+    let (dir, off, on) = takeoff_replayed_with(|o| o.bootstrap.rest_gyro_rotation_noise = true);
     let (d_on, d_off) = (
         on.odometry.rest_imu_density.expect("rest measured"),
         off.odometry.rest_imu_density.expect("rest measured"),
     );
     assert_eq!(d_on.gyro_ratio, d_off.gyro_ratio);
     assert!((d_on.rotation_noise_scale - d_on.gyro_ratio.max(1.0)).abs() < 1e-12);
+    assert!(
+        d_on.rotation_noise_scale > 1.0,
+        "a ratio of 1 cannot show it is used"
+    );
     assert_eq!(d_off.rotation_noise_scale, 1.0);
     println!(
         "rest gyro ratio {:.2}: back end's rotation noise x{:.2}",
         d_on.gyro_ratio, d_on.rotation_noise_scale
     );
+    assert_trajectories_differ(
+        &off,
+        &on,
+        "the pad's measurement did not reach the estimate",
+    );
+    assert_metric_takeoff(&dir, &on, "take-off with the pad's gyro rotation noise");
     let (_, _, wide) = takeoff_replayed_with(|o| {
         o.window.imu_rotation_noise_factor = 5.0;
         o.keyframe_bundle.imu_rotation_noise_factor = 5.0;
     });
     assert_trajectories_differ(
-        &on,
+        &off,
         &wide,
         "the rotation noise factor did not reach the estimate",
     );
