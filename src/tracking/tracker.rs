@@ -100,7 +100,8 @@ pub struct TrackResult {
     /// `rᵀ A r` of the IMU residual at the solution (15 dof).
     pub imu_chi2: f64,
     /// The solution was solved again with the photometric term down-weighted because its IMU
-    /// residual's χ² exceeded `vision_downweight_chi2` (`imu_chi2` is the χ² after that).
+    /// residual's χ² exceeded `vision_downweight_chi2` (`imu_chi2`, `photometric_info` and
+    /// `photometric_step` are then those of the down-weighted solution).
     pub downweighted: bool,
     /// Information of the photometric term alone on frame j's pose increment `[δθ, δt]` (body
     /// frame, eq. 34/36) relative to the keyframe, brightness marginalised; zero if untracked.
@@ -446,26 +447,30 @@ impl Tracker {
         // full resolution with the photometric information scaled by `vision_downweight_chi2 /
         // χ²` — over a frame interval the IMU is the better witness of translation, and a
         // photometric optimum pulled off by a straight edge or a biased map should not carry the
-        // state (and its velocity) with it at full weight.
+        // state (and its velocity) with it at full weight. Not two frames running: a run of
+        // disagreeing frames is the state's velocity or bias being off, which the images correct.
         let phi = self.cfg.vision_downweight_chi2;
-        if let Some((fin, sigma2)) = last.take() {
-            let chi2 = fin.r_imu.dot(&(a_imu * fin.r_imu));
-            last = Some((fin, sigma2));
-            if phi > 0.0 && chi2 > phi && chi2.is_finite() && !self.last_downweighted {
-                let sigma2_w = sigma2 * (chi2 / phi);
-                if let Some(probe) = self.photometric(0, &x, aff) {
-                    let start = self.assemble(Some(probe), pre, xi, &x, a_imu, aff, sigma2_w);
-                    let Some((cur, accepted)) = self
-                        .gauss_newton_level(0, start, pre, xi, a_imu, &mut x, &mut aff, sigma2_w)
-                    else {
-                        res.flag = Some(FlagReason::SolverFailed);
-                        return None;
-                    };
-                    res.iterations[0] = res.iterations[0].saturating_add(accepted);
-                    res.downweighted = true;
-                    last = Some((cur, sigma2_w));
-                }
-            }
+        let first = last
+            .as_ref()
+            .map(|(fin, sigma2)| (fin.r_imu.dot(&(a_imu * fin.r_imu)), *sigma2));
+        if let Some((chi2, sigma2)) = first
+            && phi > 0.0
+            && chi2 > phi
+            && chi2.is_finite()
+            && !self.last_downweighted
+            && let Some(probe) = self.photometric(0, &x, aff)
+        {
+            let sigma2_w = sigma2 * (chi2 / phi);
+            let start = self.assemble(Some(probe), pre, xi, &x, a_imu, aff, sigma2_w);
+            let Some((cur, accepted)) =
+                self.gauss_newton_level(0, start, pre, xi, a_imu, &mut x, &mut aff, sigma2_w)
+            else {
+                res.flag = Some(FlagReason::SolverFailed);
+                return None;
+            };
+            res.iterations[0] = res.iterations[0].saturating_add(accepted);
+            res.downweighted = true;
+            last = Some((cur, sigma2_w));
         }
         let Some((fin, _)) = last else {
             res.flag = Some(FlagReason::FewInliers);
