@@ -413,20 +413,10 @@ fn preintegrate_turned_gyro(
     t: vidslam::time::TimeNs,
 ) -> vidslam::imu::Preintegration {
     let r = nalgebra::Rotation3::new(*phi);
-    let n = (t.0 - from.nav.t.0) / demo_flight::IMU_PERIOD_NS;
-    let imu: Vec<vidslam::imu::ImuSample> = (0..=n)
-        .map(|k| {
-            let mut s = vidslam::sim::imu_synth::ideal_imu(
-                sp,
-                from.nav.t.add_ns(k * demo_flight::IMU_PERIOD_NS),
-            );
-            s.gyro_rad_s = r.inverse() * s.gyro_rad_s;
-            s
-        })
-        .collect();
-    let mut pre = vidslam::imu::Preintegration::new(from.nav.t, from.bias);
-    pre.integrate(&imu, t, Some(&ImuNoise::euroc_adis16448()));
-    pre
+    demo_flight::preintegrate_mapped(sp, from, t, |mut s| {
+        s.gyro_rad_s = r.inverse() * s.gyro_rad_s;
+        s
+    })
 }
 
 /// 25 s of the figure-eights (100 keyframes, guesses chained from the previous estimate as the
@@ -558,20 +548,12 @@ fn preintegrate_wandering_gyro(
     from: &FrameState,
     t: vidslam::time::TimeNs,
 ) -> vidslam::imu::Preintegration {
-    let n = (t.0 - from.nav.t.0) / demo_flight::IMU_PERIOD_NS;
     let t0 = sp.start();
-    let imu: Vec<vidslam::imu::ImuSample> = (0..=n)
-        .map(|k| {
-            let ts = from.nav.t.add_ns(k * demo_flight::IMU_PERIOD_NS);
-            let mut s = vidslam::sim::imu_synth::ideal_imu(sp, ts);
-            let phase = std::f64::consts::TAU * ts.secs_since(t0) / 6.0;
-            s.gyro_rad_s += amplitude_rad_s * Vector3::new(phase.sin(), 0.0, phase.cos());
-            s
-        })
-        .collect();
-    let mut pre = vidslam::imu::Preintegration::new(from.nav.t, from.bias);
-    pre.integrate(&imu, t, Some(&ImuNoise::euroc_adis16448()));
-    pre
+    demo_flight::preintegrate_mapped(sp, from, t, |mut s| {
+        let phase = std::f64::consts::TAU * s.t.secs_since(t0) / 6.0;
+        s.gyro_rad_s += amplitude_rad_s * Vector3::new(phase.sin(), 0.0, phase.cos());
+        s
+    })
 }
 
 /// 20 s of the figure-eights (80 keyframes, guesses chained as the tracker gives them, exact

@@ -43,13 +43,23 @@ pub fn preintegrate_with_accel_bias(
     from: &FrameState,
     t: TimeNs,
 ) -> Preintegration {
+    preintegrate_mapped(sp, from, t, |mut s| {
+        s.accel_m_s2 += bias_m_s2;
+        s
+    })
+}
+
+/// The noise-free IMU with every sample passed through `map` (a sensor biased, turned…), from
+/// keyframe state `from` to `t`, preintegrated at `from`'s bias estimate.
+pub fn preintegrate_mapped(
+    sp: &PoseSpline,
+    from: &FrameState,
+    t: TimeNs,
+    map: impl Fn(ImuSample) -> ImuSample,
+) -> Preintegration {
     let n = (t.0 - from.nav.t.0) / IMU_PERIOD_NS;
     let imu: Vec<ImuSample> = (0..=n)
-        .map(|k| {
-            let mut s = ideal_imu(sp, from.nav.t.add_ns(k * IMU_PERIOD_NS));
-            s.accel_m_s2 += bias_m_s2;
-            s
-        })
+        .map(|k| map(ideal_imu(sp, from.nav.t.add_ns(k * IMU_PERIOD_NS))))
         .collect();
     let mut pre = Preintegration::new(from.nav.t, from.bias);
     pre.integrate(&imu, t, Some(&ImuNoise::euroc_adis16448()));

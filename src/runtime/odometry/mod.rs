@@ -762,9 +762,6 @@ pub struct Odometry {
     /// rescaled at the take-off to the ones measured on the pad (`[bootstrap]
     /// rest_imu_noise_factor`) over the tracker's `imu_noise_scale`, which multiplies them again.
     imu_noise: ImuNoise,
-    /// The keyframe adjustment's `imu_rotation_noise_factor` is multiplied by this (the pad's
-    /// measurement, [`RestImuDensity::rotation_noise_scale`]; 1 until then).
-    rotation_noise_scale: f64,
 }
 
 impl Odometry {
@@ -877,7 +874,6 @@ impl Odometry {
             mapper_kf_pose: None,
             vignette_gain,
             imu_noise: rig.noise,
-            rotation_noise_scale: 1.0,
             cfg,
             rig,
         }
@@ -1332,7 +1328,6 @@ impl Odometry {
             } else {
                 1.0
             };
-        self.rotation_noise_scale = rotation_noise_scale;
         self.window.set_imu_rotation_noise_factor(
             self.cfg.window.imu_rotation_noise_factor * rotation_noise_scale,
         );
