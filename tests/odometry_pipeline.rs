@@ -184,14 +184,15 @@ fn the_imu_is_weighted_by_the_noise_measured_on_the_pad_when_asked() {
     assert_metric_takeoff(&dir, &b, "take-off with the measured noise");
 }
 
-/// `[bootstrap] rest_gyro_rotation_noise` (off by default): from the take-off on, the rotation
+/// `[bootstrap] rest_gyro_rotation_noise` (on by default): from the take-off on, the rotation
 /// part of the keyframe window's and the keyframe adjustment's IMU factors is weighted by the
 /// gyro's noise measured on the pad (its ratio to `sensor.yaml`, at least 1); off, by 1. It and
 /// the factor on top of it (`imu_rotation_noise_factor`) reach the estimate, and the take-off
 /// stays metric.
 #[test]
 fn the_back_ends_gyro_rotation_is_weighted_by_the_pads_measurement() {
-    let (dir, off, on) = takeoff_replayed_with(|o| o.bootstrap.rest_gyro_rotation_noise = true);
+    assert!(ReplayOptions::default().bootstrap.rest_gyro_rotation_noise);
+    let (dir, on, off) = takeoff_replayed_with(|o| o.bootstrap.rest_gyro_rotation_noise = false);
     let (d_on, d_off) = (
         on.odometry.rest_imu_density.expect("rest measured"),
         off.odometry.rest_imu_density.expect("rest measured"),
@@ -213,12 +214,13 @@ fn the_back_ends_gyro_rotation_is_weighted_by_the_pads_measurement() {
         "the pad's measurement did not reach the estimate",
     );
     assert_metric_takeoff(&dir, &on, "take-off with the pad's gyro rotation noise");
+    assert_metric_takeoff(&dir, &off, "take-off without the pad's gyro rotation noise");
     let (_, _, wide) = takeoff_replayed_with(|o| {
         o.window.imu_rotation_noise_factor = 5.0;
         o.keyframe_bundle.imu_rotation_noise_factor = 5.0;
     });
     assert_trajectories_differ(
-        &off,
+        &on,
         &wide,
         "the rotation noise factor did not reach the estimate",
     );

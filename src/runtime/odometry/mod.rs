@@ -298,12 +298,12 @@ pub struct BootstrapConfig {
     /// the photometric information), so a gyro that disagrees with the camera by more than that —
     /// rotor vibration, a wander over seconds — turns the keyframes' attitudes, gravity with
     /// them, and the velocity and map scale after it. The translation part, which carries the
-    /// metric scale, keeps its weight. On S-V101 (5.9 × on the pad) seeds 1–12 median 0.169 →
-    /// 0.131 m, 10 of 12 better (a fixed 5 everywhere: 0.119 m, but demo seed 13 ran away); the
-    /// demo flights measure 0.96–1.47 × (median of 24 seeds 1.44 → 1.48 cm). Off by default: on
-    /// the 20 s demo with its gyro turned 0.7° (`tests/gyro_misalignment.rs`) the turned gyro's
-    /// poses ran 1.1 m off the recorded gyro's from 15 s on (0.13 m off) — docs/odometry-log.md,
-    /// *The gyro's rotation weighed by its wander*.
+    /// metric scale, keeps its weight. On by default since 2026-12-02: on S-V101 (5.9 × on the
+    /// pad) seeds 1–16 median 0.152 → 0.132 m, worst 0.558 → 0.421 m, 10 of 16 better (a fixed 5
+    /// everywhere: seeds 1–12 0.119 m, but demo seed 13 ran away); the demo flights measure
+    /// 0.96–1.47 × (median of 24 seeds 1.44 → 1.48 cm; with the gyro turned 0.7°, seeds 1–8
+    /// median 1.84 → 1.66 cm) — docs/odometry-log.md, *The gyro's rotation weighed by its
+    /// wander*.
     pub rest_gyro_rotation_noise: bool,
 }
 
@@ -370,7 +370,7 @@ impl Default for BootstrapConfig {
             zupt_max_speed_m_s: 0.1,
             zupt_velocity_std_m_s: 0.005,
             rest_imu_noise_factor: 0.0,
-            rest_gyro_rotation_noise: false,
+            rest_gyro_rotation_noise: true,
         }
     }
 }
