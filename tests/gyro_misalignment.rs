@@ -10,7 +10,7 @@
 //! same render replayed from files (`vidslam replay`, the gyro rewritten) 0.95 m off, and with
 //! `[bootstrap] rest_gyro_rotation_noise` 1.1 m. Over the whole flight the maps recover, and the
 //! turned and recorded gyros' poses stay 4–8 cm apart with that option off or on
-//! (docs/odometry-log.md, *The gyro's rotation weighed by its wander*).
+//! (docs/odometry-log.md, *The pad's rotation factor made the default*).
 
 mod drive;
 mod scratch;
@@ -88,9 +88,9 @@ fn the_window_reads_a_gyro_mounted_askew_and_the_poses_stay_with_the_recorded_gy
         Some(h.last().unwrap().1),
         s_turned_on.window_gyro_misalignment_rad()
     );
-    // The estimate holds from 10 s after the window's first solve on, across the window's restarts (a return
-    // to a stored keyframe the window cannot join restarts it, once on this flight; `reset` keeps
-    // φ and its information).
+    // The estimate holds from 10 s after the window's first solve on, across the window's
+    // restarts (a return to a stored keyframe the window cannot join restarts it, once on this
+    // flight; `reset` keeps φ and its information).
     let t0 = h[0].0;
     for (t, phi) in h.iter().filter(|(t, _)| t.secs_since(t0) >= 10.0) {
         let e = phi.map(f64::to_degrees) - turn_rad().map(f64::to_degrees);

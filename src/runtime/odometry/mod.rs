@@ -302,8 +302,8 @@ pub struct BootstrapConfig {
     /// pad) seeds 1–16 median 0.152 → 0.132 m, worst 0.558 → 0.421 m, 10 of 16 better (a fixed 5
     /// everywhere: seeds 1–12 0.119 m, but demo seed 13 ran away); the demo flights measure
     /// 0.96–1.47 × (median of 24 seeds 1.44 → 1.48 cm; with the gyro turned 0.7°, seeds 1–8
-    /// median 1.84 → 1.66 cm) — docs/odometry-log.md, *The gyro's rotation weighed by its
-    /// wander*.
+    /// median 1.84 → 1.67 cm) — docs/odometry-log.md, *The gyro's rotation weighed by its
+    /// wander*, *The pad's rotation factor made the default*.
     pub rest_gyro_rotation_noise: bool,
 }
 
