@@ -449,15 +449,13 @@ impl Tracker {
         // photometric optimum pulled off by a straight edge or a biased map should not carry the
         // state (and its velocity) with it at full weight. Not two frames running: a run of
         // disagreeing frames is the state's velocity or bias being off, which the images correct.
+        let imu_chi2 = |e: &Evaluation| e.r_imu.dot(&(a_imu * e.r_imu));
         let phi = self.cfg.vision_downweight_chi2;
-        let first = last
-            .as_ref()
-            .map(|(fin, sigma2)| (fin.r_imu.dot(&(a_imu * fin.r_imu)), *sigma2));
-        if let Some((chi2, sigma2)) = first
-            && phi > 0.0
+        if phi > 0.0
+            && !self.last_downweighted
+            && let Some((chi2, sigma2)) = last.as_ref().map(|(fin, s2)| (imu_chi2(fin), *s2))
             && chi2 > phi
             && chi2.is_finite()
-            && !self.last_downweighted
             && let Some(probe) = self.photometric(0, &x, aff)
         {
             let sigma2_w = sigma2 * (chi2 / phi);
@@ -481,7 +479,7 @@ impl Tracker {
         res.inlier_ratio = ph.num_inliers as f64 / n0;
         res.overlap = ph.num_valid as f64 / n0;
         res.residual_rms_gray = ph.inlier_rms_gray();
-        res.imu_chi2 = fin.r_imu.dot(&(a_imu * fin.r_imu));
+        res.imu_chi2 = imu_chi2(&fin);
         let all_finite =
             fin.cost.is_finite() && x.is_finite() && aff.0.is_finite() && aff.1.is_finite();
         if !all_finite {
