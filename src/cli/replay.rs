@@ -4,6 +4,7 @@ use crate::dataset::{AslDataset, TrajectoryFormat};
 use crate::eval::imu_consistency::implied_accel_bias;
 use crate::eval::plot_report;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
+use crate::runtime::odometry::adjustments_csv;
 use crate::runtime::replay::StartMode;
 use crate::runtime::report::{frames_csv, write_ply};
 use crate::runtime::scale_observer::imu_scale_csv;
@@ -210,6 +211,11 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     if !out.odometry.imu_scale.is_empty() {
         let p = a.out.join("imu_scale.csv");
         std::fs::write(&p, imu_scale_csv(&out.odometry.imu_scale))
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    if !out.odometry.adjustments.is_empty() {
+        let p = a.out.join("adjustments.csv");
+        std::fs::write(&p, adjustments_csv(&out.odometry.adjustments))
             .with_context(|| format!("writing {}", p.display()))?;
     }
     if !out.odometry.window_map_log_scales.is_empty() {

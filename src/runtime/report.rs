@@ -61,6 +61,8 @@ pub struct ReplayReport {
     /// Frames each take-off refinement pass re-posed (at most `[bootstrap]
     /// takeoff_max_pass_frames`, evenly spaced over the take-off).
     pub takeoff_pass_views: Vec<usize>,
+    /// Frames between sending each take-off refinement pass and applying it.
+    pub takeoff_pass_lag_frames: Vec<u64>,
     pub tracking_ms_p50: f64,
     pub tracking_ms_p99: f64,
     pub tracking_ms_max: f64,
@@ -359,6 +361,7 @@ impl ReplayReport {
                 .map(|s| s * 1e3)
                 .collect(),
             takeoff_pass_views: out.odometry.takeoff_pass_views.clone(),
+            takeoff_pass_lag_frames: out.odometry.takeoff_pass_lag_frames.clone(),
             tracking_ms_p50: pct(50.0),
             tracking_ms_p99: pct(99.0),
             tracking_ms_max: ms.last().copied().unwrap_or(0.0),
@@ -649,6 +652,12 @@ impl ReplayReport {
                 .map(|n| n.to_string())
                 .collect();
             row("take-off pass views", views.join(" "));
+            let lags: Vec<String> = self
+                .takeoff_pass_lag_frames
+                .iter()
+                .map(|n| n.to_string())
+                .collect();
+            row("take-off pass lag frames", lags.join(" "));
         }
         row(
             "tracking ms p50/p99/max",

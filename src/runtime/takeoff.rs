@@ -67,6 +67,8 @@ pub struct TakeoffRecord {
     pub frames: Vec<MapFrame>,
     /// Refinement passes done.
     pub passes: u32,
+    /// Frames between sending the last pass and applying it.
+    pub last_pass_lag_frames: u64,
     /// A first map started in flight: the start velocity's prior is `rest`'s, not zero, with
     /// `[bootstrap] reinit_velocity_std_m_s` instead of `takeoff_velocity_std_m_s`.
     pub in_flight: bool,
@@ -89,6 +91,7 @@ impl TakeoffRecord {
             keyframe_id,
             frames: Vec::new(),
             passes: 0,
+            last_pass_lag_frames: 0,
             in_flight,
         }
     }

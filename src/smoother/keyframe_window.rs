@@ -209,6 +209,8 @@ pub struct KeyframeWindow {
     prior: Option<Prior>,
     /// The gyro's turn φ as last solved, rad.
     phi: Vector3<f64>,
+    /// Multiplies `cfg.imu_rotation_noise_factor` ([`Self::set_imu_rotation_noise_scale`]).
+    rotation_noise_scale: f64,
 }
 
 /// `x ⊟ lin` in the increment convention of [`FrameState::boxplus`].
@@ -229,9 +231,11 @@ pub fn boxminus(x: &FrameState, lin: &FrameState) -> Vector15 {
 }
 
 impl KeyframeWindow {
-    /// Sets `imu_rotation_noise_factor` (from now on: the IMU factors are rebuilt at every solve).
-    pub fn set_imu_rotation_noise_factor(&mut self, factor: f64) {
-        self.cfg.imu_rotation_noise_factor = factor;
+    /// Multiplies `imu_rotation_noise_factor` by `scale` from now on (the IMU factors are rebuilt
+    /// at every solve): the pad's measurement of the gyro (`[bootstrap] rest_gyro_rotation_noise`),
+    /// which reaches the keyframe adjustment the same way (`KeyframeJob::rotation_noise_scale`).
+    pub fn set_imu_rotation_noise_scale(&mut self, scale: f64) {
+        self.rotation_noise_scale = scale;
     }
 
     pub fn new(cfg: WindowConfig, noise: ImuNoise) -> Self {
@@ -241,6 +245,7 @@ impl KeyframeWindow {
             nodes: VecDeque::new(),
             prior: None,
             phi: Vector3::zeros(),
+            rotation_noise_scale: 1.0,
         }
     }
 
@@ -592,7 +597,9 @@ impl KeyframeWindow {
                 };
                 let mut pre_w = pre.clone();
                 pre_w.cov *= self.cfg.imu_noise_scale.powi(2);
-                pre_w.scale_rotation_noise(self.cfg.imu_rotation_noise_factor);
+                pre_w.scale_rotation_noise(
+                    self.cfg.imu_rotation_noise_factor * self.rotation_noise_scale,
+                );
                 let mut cov =
                     imu_residual_covariance(&pre_w, &self.noise, xi, xj, &Matrix15::zeros());
                 for k in 0..15 {

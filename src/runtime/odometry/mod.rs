@@ -93,6 +93,7 @@ mod refinement_jobs;
 
 pub use gyro_link::GyroAlignmentStats;
 use gyro_link::GyroLink;
+pub use refinement_jobs::{AdjustmentOutcome, AdjustmentRecord, adjustments_csv};
 
 /// Static frames remembered to pick the first keyframe before the back-dated motion onset.
 const STATIC_FRAMES_KEPT: usize = 16;
@@ -228,6 +229,14 @@ pub struct BootstrapConfig {
     /// to their first map, kept its dead-reckoned scale (+16 / +25 %; docs/odometry-log.md,
     /// *Slow take-offs got no take-off refinement*).
     pub takeoff_max_pass_frames: usize,
+    /// A further pass is started only if the previous one came back within this many frames of
+    /// being sent (offline it comes back after `takeoff_lag_frames`): each pass is dead reckoning
+    /// the first map is not tracked over, and the second pass, over the frames gathered while the
+    /// first ran, takes longer than the first. In real time on the 2-core machine the first pass
+    /// comes back 5–6 frames late and the second 14 more: the demo then started tracking 2.0–3.7 s
+    /// after the onset (0.85–1.0 s offline) and ran away on 2 of 10 runs; with one pass 0.65–1.7 s
+    /// and none of 8 (docs/odometry-log.md, *Real-time take-offs get one pass*).
+    pub takeoff_further_pass_max_lag_frames: u64,
     /// Prior standard deviation of the velocity at the rest state, m/s.
     pub takeoff_velocity_std_m_s: f64,
     /// A first map started in flight (after a loss) is refined like the take-off's, with this
@@ -355,6 +364,7 @@ impl Default for BootstrapConfig {
             refine_takeoff_passes: 2,
             takeoff_lag_frames: 0,
             takeoff_max_pass_frames: 30,
+            takeoff_further_pass_max_lag_frames: 2,
             takeoff_velocity_std_m_s: 0.01,
             reinit_velocity_std_m_s: 0.0,
             reinit_guessed_depths: true,
@@ -508,6 +518,8 @@ pub struct OdometryStats {
     /// Frames each applied take-off refinement pass re-posed (at most `[bootstrap]
     /// takeoff_max_pass_frames` of the take-off's, evenly spaced).
     pub takeoff_pass_views: Vec<usize>,
+    /// Frames between sending each applied take-off refinement pass and applying it.
+    pub takeoff_pass_lag_frames: Vec<u64>,
     /// Wall time of each in-flight keyframe adjustment (`[keyframe_bundle]`), s.
     pub keyframe_bundle_s: Vec<f64>,
     /// Median relative inverse-depth change of each in-flight keyframe adjustment.
@@ -531,6 +543,8 @@ pub struct OdometryStats {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub catch_up_frames: usize,
+    /// Every keyframe adjustment that came back, in order (`OUT/adjustments.csv`).
+    pub adjustments: Vec<AdjustmentRecord>,
     /// Scale change (new / old depths) of each keyframe tracked with guessed depths and then
     /// adjusted with its depths free (`[keyframe_bundle] guessed_min_baseline_ratio`).
     pub guessed_keyframe_scales: Vec<f64>,
@@ -1328,9 +1342,8 @@ impl Odometry {
             } else {
                 1.0
             };
-        self.window.set_imu_rotation_noise_factor(
-            self.cfg.window.imu_rotation_noise_factor * rotation_noise_scale,
-        );
+        self.window
+            .set_imu_rotation_noise_scale(rotation_noise_scale);
         RestImuDensity {
             gyro_rad_s_sqrt_hz: e.gyro_density_rad_s_sqrt_hz,
             accel_m_s2_sqrt_hz: e.accel_density_m_s2_sqrt_hz,

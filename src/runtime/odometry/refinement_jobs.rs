@@ -5,6 +5,77 @@
 use super::*;
 use crate::runtime::keyframe_bundle::evenly_spaced;
 
+/// What became of one keyframe adjustment that came back (`OUT/adjustments.csv`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdjustmentOutcome {
+    /// Installed, and tracking continued from its last view.
+    Applied,
+    /// Moved its last view's velocity by more than `[keyframe_bundle] max_velocity_change_m_s`:
+    /// the keyframe was installed as the mapper built it.
+    Rejected,
+    /// Came back without a finite result: installed as the mapper built it.
+    Failed,
+    /// Its keyframe was no longer the one tracked or waited for (lost meanwhile).
+    Discarded,
+}
+
+impl AdjustmentOutcome {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AdjustmentOutcome::Applied => "applied",
+            AdjustmentOutcome::Rejected => "rejected",
+            AdjustmentOutcome::Failed => "failed",
+            AdjustmentOutcome::Discarded => "discarded",
+        }
+    }
+}
+
+/// One in-flight keyframe adjustment as it came back (real time: how late, and what it would
+/// have changed), for finding the adjustments that throw a flight.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdjustmentRecord {
+    /// The adjusted keyframe's time.
+    pub keyframe_t: TimeNs,
+    /// The time of the frame at which it came back (was taken).
+    pub applied_t: TimeNs,
+    /// Frames between the frame it was sent at and the one it was taken at.
+    pub frames_late: u64,
+    /// A keyframe tracked with guessed depths (its depths rescaled by it), not a new one.
+    pub guessed: bool,
+    /// Change of its last view's velocity from the state tracking had, m/s (NaN: no result).
+    pub velocity_change_m_s: f64,
+    /// Change of the accelerometer bias from the tracker's, m/s² (NaN: no result).
+    pub accel_bias_jump_m_s2: f64,
+    /// Median relative inverse-depth change of the map (NaN: no result).
+    pub depth_change: f64,
+    /// Its wall time on the refinement thread, s.
+    pub time_s: f64,
+    pub outcome: AdjustmentOutcome,
+}
+
+/// `adjustments.csv`: one row per keyframe adjustment that came back.
+pub fn adjustments_csv(rows: &[AdjustmentRecord]) -> String {
+    let mut s = String::from(
+        "keyframe_t_ns,applied_t_ns,frames_late,guessed,velocity_change_m_s,\
+         accel_bias_jump_m_s2,depth_change,time_ms,outcome\n",
+    );
+    for r in rows {
+        s.push_str(&format!(
+            "{},{},{},{},{:.4},{:.4},{:.4},{:.1},{}\n",
+            r.keyframe_t.0,
+            r.applied_t.0,
+            r.frames_late,
+            u8::from(r.guessed),
+            r.velocity_change_m_s,
+            r.accel_bias_jump_m_s2,
+            r.depth_change,
+            r.time_s * 1e3,
+            r.outcome.as_str()
+        ));
+    }
+    s
+}
+
 impl Odometry {
     /// Sends one refinement pass of the take-off whose first map `kf` (snapshot `s`) is ready to
     /// the refinement thread; it will re-pose and rescale the views and the first map is started
@@ -19,6 +90,7 @@ impl Odometry {
         if tk.keyframe_id != s.keyframe_id
             || tk.passes >= b.refine_takeoff_passes
             || (tk.passes > 0 && tk.frames.len() > b.takeoff_max_pass_frames)
+            || (tk.passes > 0 && tk.last_pass_lag_frames > b.takeoff_further_pass_max_lag_frames)
         {
             return false; // done
         }
@@ -255,7 +327,7 @@ impl Odometry {
                 (*unadjusted, &snapshot, tracked),
                 &tracked_last,
                 &catch_up,
-                o.time_s,
+                (o.time_s, self.frame_number - p.frame_number),
             ),
             (
                 RefineResult::Takeoff(refined),
@@ -264,7 +336,13 @@ impl Odometry {
                     frames_sent,
                     snapshot,
                 },
-            ) => self.apply_takeoff(refined, keyframe_id, frames_sent, &snapshot, o.time_s),
+            ) => self.apply_takeoff(
+                refined,
+                keyframe_id,
+                frames_sent,
+                &snapshot,
+                (o.time_s, self.frame_number - p.frame_number),
+            ),
             _ => {} // (a job and its outcome are always of the same kind)
         }
     }
@@ -280,9 +358,20 @@ impl Odometry {
         (unadjusted, snapshot, tracked): (Keyframe, &MapSnapshot, bool),
         tracked_last: &FrameState,
         catch_up: &[(TimeNs, Arc<Image<u8>>)],
-        time_s: f64,
+        (time_s, frames_late): (f64, u64),
     ) {
         let id = snapshot.keyframe_id;
+        let mut record = AdjustmentRecord {
+            keyframe_t: unadjusted.t,
+            applied_t: self.last_t.unwrap_or(unadjusted.t),
+            frames_late,
+            guessed: tracked,
+            velocity_change_m_s: f64::NAN,
+            accel_bias_jump_m_s2: f64::NAN,
+            depth_change: f64::NAN,
+            time_s,
+            outcome: AdjustmentOutcome::Discarded,
+        };
         let current = if tracked {
             self.pending_kf.is_none() && self.tracking_kf == Some(id) && !self.reusing
         } else {
@@ -290,6 +379,7 @@ impl Odometry {
         };
         if !(self.phase == Phase::Tracking && current) {
             self.stats.refinements_discarded += 1; // lost meanwhile
+            self.stats.adjustments.push(record);
             return;
         }
         let mut adjusted = adjusted.filter(|a| {
@@ -300,14 +390,25 @@ impl Odometry {
         if let Some(a) = &adjusted {
             let dv_m_s = (a.last_view.nav.v_world_m_s - tracked_last.nav.v_world_m_s).norm();
             self.stats.keyframe_bundle_velocity_changes_m_s.push(dv_m_s);
+            record.velocity_change_m_s = dv_m_s;
+            record.accel_bias_jump_m_s2 =
+                (a.last_view.bias.accel_m_s2 - self.tracker.state().bias.accel_m_s2).norm();
+            record.depth_change = a.median_inv_depth_change;
             // (A keyframe tracked with guessed depths is rescaled by its adjustment, velocity
             // and all: not limited.)
             let max_m_s = self.cfg.keyframe_bundle.max_velocity_change_m_s;
             if !tracked && max_m_s > 0.0 && dv_m_s > max_m_s {
                 self.stats.refinements_rejected += 1;
+                record.outcome = AdjustmentOutcome::Rejected;
                 adjusted = None;
             }
+        } else {
+            record.outcome = AdjustmentOutcome::Failed;
         }
+        if adjusted.is_some() {
+            record.outcome = AdjustmentOutcome::Applied;
+        }
+        self.stats.adjustments.push(record);
         let Some(a) = adjusted else {
             if !tracked {
                 self.install_keyframe(unadjusted, snapshot, true, false, false);
@@ -407,7 +508,7 @@ impl Odometry {
         keyframe_id: u32,
         frames_sent: usize,
         snapshot: &MapSnapshot,
-        time_s: f64,
+        (time_s, lag_frames): (f64, u64),
     ) {
         if self.phase != Phase::Initializing
             || self.takeoff.as_ref().map(|t| t.keyframe_id) != Some(keyframe_id)
@@ -448,6 +549,7 @@ impl Odometry {
         tk.rest = r.rest;
         tk.keyframe_id = self.next_kf_id;
         tk.passes += 1;
+        tk.last_pass_lag_frames = lag_frames;
         tk.frames = views.clone();
         self.start_keyframe(tk.keyframe.clone(), views, false);
         // The first map starts again: it gets the whole `max_init_s` to grow.
@@ -455,6 +557,7 @@ impl Odometry {
         self.stats.takeoff_scales.push(r.scale);
         self.stats.takeoff_refinement_s.push(time_s);
         self.stats.takeoff_pass_views.push(pass_views);
+        self.stats.takeoff_pass_lag_frames.push(lag_frames);
         self.takeoff = Some(tk);
     }
 
