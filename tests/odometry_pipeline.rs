@@ -330,6 +330,8 @@ fn refinements_applied_frames_late_keep_replays_identical() {
     };
     opts.keyframe_bundle.lag_frames = 3;
     opts.bootstrap.takeoff_lag_frames = 5;
+    // Both passes, each applied late (by default a pass back this late starts no second one).
+    opts.bootstrap.takeoff_further_pass_max_lag_frames = 5;
     let a = replay(&dir, &opts, &mut |_, _| {}).unwrap();
     let b = replay(&dir, &opts, &mut |_, _| {}).unwrap();
     assert!(
