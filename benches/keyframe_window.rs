@@ -1,6 +1,7 @@
 //! One keyframe-window update (issue 5): push a keyframe (marginalising the oldest of a full
-//! 6-keyframe window) and solve, on the built-in flight with noise-free IMU and slightly wrong
-//! initial guesses — the work the tracking thread does at every new keyframe.
+//! window, `[window] max_keyframes` as configured by default, 12) and solve, on the built-in
+//! flight with noise-free IMU and slightly wrong initial guesses — the work the tracking thread
+//! does at every new keyframe.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
@@ -28,7 +29,9 @@ fn bench(c: &mut Criterion) {
         .0;
     let noise = ImuNoise::euroc_adis16448();
     let t0 = sp.start().add_ns(10_000_000_000);
-    let states: Vec<FrameState> = (0..=7)
+    // A full window, then the keyframe that makes it marginalise its oldest.
+    let full = WindowConfig::default().max_keyframes;
+    let states: Vec<FrameState> = (0..=full as i64)
         .map(|k| truth(&sp, t0.add_ns(k * KF_PERIOD_NS)))
         .collect();
     let pre: Vec<Preintegration> = states
@@ -49,7 +52,7 @@ fn bench(c: &mut Criterion) {
     let build = || {
         let mut w = KeyframeWindow::new(WindowConfig::default(), noise);
         w.reset(0, states[0], &cov0);
-        for k in 1..=6 {
+        for k in 1..full {
             let mut guess = states[k];
             guess.nav.p_world_m += Vector3::new(0.01, -0.005, 0.002);
             guess.nav.v_world_m_s += Vector3::new(0.03, 0.0, -0.01);
@@ -66,17 +69,17 @@ fn bench(c: &mut Criterion) {
         w
     };
     c.bench_function(
-        "keyframe window: push (marginalise) + solve, 6 keyframes",
+        "keyframe window: push (marginalise) + solve, full window",
         |b| {
             b.iter_batched(
                 build,
                 |mut w| {
                     w.push(
-                        7,
-                        states[7],
-                        pre[6].clone(),
+                        full as u32,
+                        states[full],
+                        pre[full - 1].clone(),
                         Some(RelativePose {
-                            t_i_j: pose_of(&states[6]).inverse() * pose_of(&states[7]),
+                            t_i_j: pose_of(&states[full - 1]).inverse() * pose_of(&states[full]),
                             information: info,
                         }),
                     );

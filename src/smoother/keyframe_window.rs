@@ -27,6 +27,7 @@
 //! State increment per keyframe in the order of eq. 11, `[δθ, δt, δv, δbω, δba]`, then λ with
 //! `map_scale`; after all keyframes, φ's 3 rows with `gyro_misalignment`.
 
+use super::envelope_cholesky::EnvelopeCholesky;
 use super::relative_pose::RelativePose;
 use crate::geometry::log_so3;
 use crate::imu::imu_jacobian_j;
@@ -491,7 +492,8 @@ impl KeyframeWindow {
                 hd[(k, k)] *= 1.0 + lambda;
                 hd[(k, k)] += 1e-12;
             }
-            let Some(chol) = hd.cholesky() else {
+            // The chain's envelope only (`envelope_cholesky`): ~10x cheaper than dense here.
+            let Some(chol) = EnvelopeCholesky::factor(&hd) else {
                 lambda *= 10.0;
                 continue;
             };

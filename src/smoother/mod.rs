@@ -2,6 +2,7 @@
 //! the relative poses tracking measured, that moves keyframes onto an IMU-consistent solution
 //! (see [`keyframe_window`] for why the paper's frame-to-keyframe tracking needs it).
 
+pub mod envelope_cholesky;
 pub mod keyframe_window;
 mod nearest;
 pub mod photometric_bundle;
