@@ -831,7 +831,7 @@ fn a_takeoff_pass_back_late_starts_no_further_pass() {
         .filter(|a| a.outcome == AdjustmentOutcome::Applied);
     assert!(applied.clone().all(|a| a.velocity_change_m_s.is_finite()
         && a.accel_bias_jump_m_s2.is_finite()
-        && a.keyframe_t < a.applied_t));
+        && a.keyframe_t < a.taken_after_t));
     assert_eq!(
         adjustments_csv(&o.adjustments).lines().count(),
         o.adjustments.len() + 1

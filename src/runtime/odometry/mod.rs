@@ -86,14 +86,15 @@ use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::sync::Arc;
 
+mod adjustment_log;
 mod gyro_link;
 mod keyframe_returns;
 mod mapper_link;
 mod refinement_jobs;
 
+pub use adjustment_log::{AdjustmentOutcome, AdjustmentRecord, adjustments_csv};
 pub use gyro_link::GyroAlignmentStats;
 use gyro_link::GyroLink;
-pub use refinement_jobs::{AdjustmentOutcome, AdjustmentRecord, adjustments_csv};
 
 /// Static frames remembered to pick the first keyframe before the back-dated motion onset.
 const STATIC_FRAMES_KEPT: usize = 16;
