@@ -154,6 +154,9 @@ pub struct ReplayOutput {
     pub frames: Vec<TrackResult>,
     /// The odometry phase of each of `frames`.
     pub phases: Vec<Phase>,
+    /// The tracking thread's whole wall time on each of `frames` ([`super::odometry::OdometryFrame::frame_s`]; with
+    /// ground-truth depth, tracking alone), s.
+    pub frame_s: Vec<f64>,
     /// Frames read before the first valid pose (no rest detected yet).
     pub frames_waiting: usize,
     /// What the mapping thread built (empty with ground-truth depth).
@@ -349,6 +352,7 @@ fn replay_full(
         if f.valid {
             out.frames.push(f.result);
             out.phases.push(f.phase);
+            out.frame_s.push(f.frame_s);
         } else {
             out.frames_waiting += 1;
         }
@@ -399,6 +403,7 @@ fn replay_gt_depth(
             tracker.track(rec.t, &img, &pre)
         };
         let need_kf = k == 0 || result.wants_keyframe;
+        out.frame_s.push(result.time_s);
         out.frames.push(result);
         out.phases.push(Phase::Tracking);
         if need_kf && opts.tracker.use_vision {

@@ -418,6 +418,12 @@ pub struct OdometryFrame {
     pub valid: bool,
     /// Incremented at every re-initialisation after a loss (MAVLink `reset_counter`).
     pub resets: u32,
+    /// Wall time of [`Odometry::push_frame`] for this frame, s: all the tracking thread did for
+    /// it — the image's corrections, the mapper's and the refinement's results taken in, keyframes
+    /// built and installed, tracking, the keyframe window; offline also the waits for the mapper's
+    /// and the refinement's results at their fixed frames. (`result.time_s` is tracking and the
+    /// window alone.)
+    pub frame_s: f64,
 }
 
 /// Sensor description the odometry needs.
@@ -945,7 +951,14 @@ impl Odometry {
     }
 
     /// Processes the frame at `t` (all IMU samples up to at least `t` pushed first).
-    pub fn push_frame(&mut self, t: TimeNs, mut image: Image<u8>) -> OdometryFrame {
+    pub fn push_frame(&mut self, t: TimeNs, image: Image<u8>) -> OdometryFrame {
+        let started = std::time::Instant::now();
+        let mut f = self.process_frame(t, image);
+        f.frame_s = started.elapsed().as_secs_f64();
+        f
+    }
+
+    fn process_frame(&mut self, t: TimeNs, mut image: Image<u8>) -> OdometryFrame {
         if let Some(gain) = &self.vignette_gain
             && gain.len() == image.width() * image.height()
         {
@@ -969,6 +982,7 @@ impl Odometry {
                     phase: Phase::WaitingForStart,
                     valid: false,
                     resets: self.stats.resets,
+                    frame_s: 0.0,
                 };
             }
             Phase::Static => {
@@ -1263,6 +1277,7 @@ impl Odometry {
             phase: self.phase,
             valid: true,
             resets: self.stats.resets,
+            frame_s: 0.0,
         }
     }
 
