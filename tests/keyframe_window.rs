@@ -108,13 +108,17 @@ fn push_chained(
 /// the tracker does), 100 keyframes, the gyro's turn estimated or not: returns the newest state
 /// after every solve.
 fn chained(max_keyframes: usize, gyro_misalignment: bool) -> Vec<FrameState> {
+    chained_with(WindowConfig {
+        gyro_misalignment,
+        ..window_config(max_keyframes)
+    })
+}
+
+fn chained_with(cfg: WindowConfig) -> Vec<FrameState> {
     use vidslam::sim::rng::SimRng;
     let sp = flight();
     let mut rng = SimRng::new(5);
-    let mut w = window_with(WindowConfig {
-        gyro_misalignment,
-        ..window_config(max_keyframes)
-    });
+    let mut w = window_with(cfg);
     let t0 = sp.start().add_ns(5_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());
@@ -134,6 +138,36 @@ fn chained(max_keyframes: usize, gyro_misalignment: bool) -> Vec<FrameState> {
         out.push(prev_est);
     }
     out
+}
+
+#[test]
+fn the_envelope_factorisation_reaches_the_dense_ones_solutions() {
+    // `[window] envelope_factorisation`: the same steps up to rounding, so over 100 keyframes of
+    // a full 12-keyframe window (the turn estimated, marginalising) the same estimates.
+    let cfg = WindowConfig {
+        gyro_misalignment: true,
+        ..window_config(12)
+    };
+    let dense = chained_with(cfg.clone());
+    let envelope = chained_with(WindowConfig {
+        envelope_factorisation: true,
+        ..cfg
+    });
+    let worst_m = dense
+        .iter()
+        .zip(&envelope)
+        .map(|(a, b)| (a.nav.p_world_m - b.nav.p_world_m).norm())
+        .fold(0.0f64, f64::max);
+    let worst_rad = dense
+        .iter()
+        .zip(&envelope)
+        .map(|(a, b)| a.nav.r_world_body.angle_to(&b.nav.r_world_body))
+        .fold(0.0f64, f64::max);
+    println!("envelope vs dense over 100 keyframes: {worst_m:e} m, {worst_rad:e} rad");
+    assert!(
+        worst_m < 1e-6 && worst_rad < 1e-8,
+        "{worst_m} m, {worst_rad} rad"
+    );
 }
 
 #[test]
