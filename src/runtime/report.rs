@@ -667,18 +667,18 @@ impl ReplayReport {
                 "take-off refinement ms",
                 joined(&self.takeoff_refinement_ms, 0),
             );
-            let views: Vec<String> = self
-                .takeoff_pass_views
-                .iter()
-                .map(|n| n.to_string())
-                .collect();
-            row("take-off pass views", views.join(" "));
-            let lags: Vec<String> = self
-                .takeoff_pass_lag_frames
-                .iter()
-                .map(|n| n.to_string())
-                .collect();
-            row("take-off pass lag frames", lags.join(" "));
+            let counts = |v: &mut dyn Iterator<Item = u64>| {
+                let s: Vec<String> = v.map(|n| n.to_string()).collect();
+                s.join(" ")
+            };
+            row(
+                "take-off pass views",
+                counts(&mut self.takeoff_pass_views.iter().map(|&n| n as u64)),
+            );
+            row(
+                "take-off pass lag frames",
+                counts(&mut self.takeoff_pass_lag_frames.iter().copied()),
+            );
         }
         row(
             "tracking ms p50/p99/max",
