@@ -53,12 +53,8 @@ impl EnvelopeCholesky {
                 let k0 = fi.max(fj);
                 let (ri, rj) = (row_i + k0 - fi, offset[j] + k0 - fj);
                 let m = j - k0;
-                let dot = if j == i {
-                    l[ri..ri + m].iter().map(|v| v * v).sum::<f64>()
-                } else {
-                    dot(&l[ri..ri + m], &l[rj..rj + m])
-                };
-                let s = a[(i, j)] - dot;
+                // (On the diagonal both slices are row i's: the sum of its squares.)
+                let s = a[(i, j)] - dot(&l[ri..ri + m], &l[rj..rj + m]);
                 let v = if j == i {
                     if !(s > 0.0 && s.is_finite()) {
                         return None;

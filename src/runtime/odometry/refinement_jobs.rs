@@ -242,6 +242,7 @@ impl Odometry {
             return;
         };
         let catch_up = std::mem::take(&mut self.catch_up);
+        let frames_late = self.frame_number - p.frame_number;
         match (o.result, p.kind) {
             (
                 RefineResult::Keyframe(adjusted),
@@ -256,7 +257,7 @@ impl Odometry {
                 (*unadjusted, &snapshot, tracked),
                 &tracked_last,
                 &catch_up,
-                (o.time_s, self.frame_number - p.frame_number),
+                (o.time_s, frames_late),
             ),
             (
                 RefineResult::Takeoff(refined),
@@ -270,7 +271,7 @@ impl Odometry {
                 keyframe_id,
                 frames_sent,
                 &snapshot,
-                (o.time_s, self.frame_number - p.frame_number),
+                (o.time_s, frames_late),
             ),
             _ => {} // (a job and its outcome are always of the same kind)
         }
@@ -368,9 +369,10 @@ impl Odometry {
                 self.keyframe_moved(id, &x);
             }
         }
+        // (Installing the keyframe leaves the tracker's state alone: the jump measured above.)
         self.stats
             .keyframe_bundle_accel_bias_jumps_m_s2
-            .push((a.last_view.bias.accel_m_s2 - self.tracker.state().bias.accel_m_s2).norm());
+            .push(record.accel_bias_jump_m_s2);
         let cov = *self.tracker.covariance();
         if catch_up.len() < MAX_CATCH_UP_FRAMES {
             let state_now = *self.tracker.state();
