@@ -1,8 +1,10 @@
 //! One tracking step (issue 4): a 752x480 frame of the built-in flight tracked against a keyframe
 //! 100 ms earlier with ground-truth depth, from the IMU prediction — pyramid, coarse-to-fine joint
-//! visual-inertial Gauss-Newton and covariance. Also the keyframe construction it amortises.
+//! visual-inertial Gauss-Newton and covariance. Also the keyframe construction it amortises, with
+//! the points unprojected and with their rays looked up.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use vidslam::camera::PixelRays;
 use vidslam::imu::{Matrix15, Preintegration};
 use vidslam::runtime::replay::start_state;
 use vidslam::tracking::{
@@ -41,6 +43,14 @@ fn bench(c: &mut Criterion) {
     };
     c.bench_function("keyframe_from_gt_depth_752x480", |b| {
         b.iter(|| make_kf(&mut tr))
+    });
+    // The same keyframe with the points' rays looked up (as the odometry builds its keyframes).
+    let rays = PixelRays::new(&cam);
+    c.bench_function("keyframe_from_gt_depth_rays_752x480", |b| {
+        b.iter(|| {
+            let t_world_cam = tr.t_world_cam();
+            Keyframe::from_rays(0, f0.t, tr.frame_pyramid(), &rays, t_world_cam, &pts, &cfg)
+        })
     });
     let kf = make_kf(&mut tr);
     tr.set_keyframe(kf);

@@ -329,6 +329,8 @@ fn refinements_applied_frames_late_keep_replays_identical() {
         ..Default::default()
     };
     opts.keyframe_bundle.lag_frames = 3;
+    // Every frame tracked meanwhile tracked again (by default, none is).
+    opts.keyframe_bundle.max_catch_up_frames = 30;
     opts.bootstrap.takeoff_lag_frames = 5;
     // Both passes, each applied late (by default a pass back this late starts no second one).
     opts.bootstrap.takeoff_further_pass_max_lag_frames = 5;
@@ -395,6 +397,39 @@ fn refinements_applied_frames_late_keep_replays_identical() {
     );
     assert!(e.ate_rmse_m < 0.03, "{}", e.ate_rmse_m);
     assert!(a.frames.iter().all(|r| r.state.is_finite()));
+}
+
+/// An adjustment back more frames late than `[keyframe_bundle] max_catch_up_frames` has only the
+/// newest that many tracked again (from its last view, the IMU across the others); with 0, the
+/// current state is moved by its last view's correction instead (in real time they are all tracked
+/// again within one frame). Emulated offline with `lag_frames = 3`.
+#[test]
+fn adjustments_back_later_than_the_catch_up_limit_track_the_newest_frames_again() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions {
+        max_seconds: Some(4.5),
+        ..Default::default()
+    };
+    opts.keyframe_bundle.lag_frames = 3;
+    let mut runs = Vec::new();
+    for max in [30, 1, 0] {
+        opts.keyframe_bundle.max_catch_up_frames = max;
+        let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+        let adjusted = out.odometry.keyframe_bundle_s.len();
+        assert!(adjusted > 0, "no adjustment");
+        // Every adjustment came back 3 frames late.
+        assert_eq!(
+            out.odometry.catch_up_frames,
+            max.min(3) * adjusted,
+            "max {max}"
+        );
+        assert!(out.frames.iter().all(|r| r.state.is_finite()));
+        runs.push((max, eval_against_truth(&dir, &out).ate_rmse_m));
+    }
+    println!("keyframe lag 3 frames, (max_catch_up_frames, ATE m): {runs:?}");
+    for (max, ate_m) in runs {
+        assert!(ate_m < 0.03, "max {max}: {ate_m}");
+    }
 }
 
 /// An in-flight keyframe adjustment that comes back with its last view's velocity moved beyond
@@ -737,14 +772,16 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
         let p = pose_of(&r.state);
         p.translation.vector.iter().all(|v| v.is_finite())
     }));
+    let o = &out.odometry;
+    assert!(out.phases.contains(&Phase::Tracking));
     println!(
         "real time: {} frames in {wall_s:.2} s, mapper jobs dropped {}, keyframe adjustments \
          applied {} (dropped {}, discarded {})",
         out.frames.len(),
-        out.odometry.jobs_dropped,
-        out.odometry.keyframe_bundle_s.len(),
-        out.odometry.refinements_dropped,
-        out.odometry.refinements_discarded
+        o.jobs_dropped,
+        o.keyframe_bundle_s.len(),
+        o.refinements_dropped,
+        o.refinements_discarded
     );
 }
 

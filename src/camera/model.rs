@@ -190,15 +190,25 @@ impl CameraModel {
     /// Projects a point in the camera frame to pixels; `None` behind or on the camera plane.
     #[inline]
     pub fn project(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
+        self.distorted(p_cam).map(|xd| self.pixel_of_distorted(&xd))
+    }
+
+    /// The distorted normalised coordinates of a point in the camera frame (the first half of
+    /// [`Self::project`]); `None` behind or on the camera plane. They are the same at every
+    /// pyramid level ([`Self::scaled_to_level`] keeps the distortion).
+    #[inline]
+    pub fn distorted(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
         if p_cam.z <= MIN_DEPTH_M {
             return None;
         }
         let xn = Vector2::new(p_cam.x / p_cam.z, p_cam.y / p_cam.z);
-        let (xd, _) = self.distort(&xn);
-        Some(Vector2::new(
-            self.fx * xd.x + self.cx,
-            self.fy * xd.y + self.cy,
-        ))
+        Some(self.distort(&xn).0)
+    }
+
+    /// The pixel of distorted normalised coordinates `xd` (the second half of [`Self::project`]).
+    #[inline]
+    pub fn pixel_of_distorted(&self, xd: &Vector2<f64>) -> Vector2<f64> {
+        Vector2::new(self.fx * xd.x + self.cx, self.fy * xd.y + self.cy)
     }
 
     /// Projection and its Jacobian d(pixel)/d(p_cam) (2x3).
@@ -282,6 +292,19 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    #[test]
+    fn a_level_pixel_from_the_distorted_coordinates_is_its_projection() {
+        for cam in models() {
+            let p = Vector3::new(0.4, -0.25, 1.7);
+            let xd = cam.distorted(&p).unwrap();
+            for level in 0..4 {
+                let c = cam.scaled_to_level(level);
+                assert_eq!(c.pixel_of_distorted(&xd), c.project(&p).unwrap());
+            }
+            assert!(cam.distorted(&Vector3::new(0.1, 0.1, -1.0)).is_none());
         }
     }
 

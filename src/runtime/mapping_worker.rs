@@ -11,9 +11,10 @@
 
 use super::true_view_poses::{TrueCameraPoses, ViewPoser};
 use crate::camera::CameraModel;
-use crate::image::Image;
+use crate::image::{Image, Pyramid};
 use crate::mapping::semidense::{SemidenseConfig, SemidenseKeyframe, SemidenseMap};
 use crate::time::TimeNs;
+use crate::tracking::NUM_LEVELS;
 use crossbeam_channel::{Receiver, Sender, bounded};
 use nalgebra::{Isometry3, Point3};
 use std::collections::VecDeque;
@@ -70,6 +71,9 @@ pub struct MapSnapshot {
     pub keyframe_id: u32,
     pub keyframe_t: TimeNs,
     pub keyframe_image: Arc<Image<u8>>,
+    /// Its pyramid with gradients (built once per keyframe, on this thread): what the tracker's
+    /// keyframe and the keyframe adjustment sample.
+    pub keyframe_pyramid: Arc<Pyramid>,
     pub map: Arc<SemidenseMap>,
     /// Views observed by this keyframe so far.
     pub views: usize,
@@ -180,6 +184,7 @@ struct Current {
     id: u32,
     t: TimeNs,
     image: Arc<Image<u8>>,
+    pyramid: Arc<Pyramid>,
     kf: SemidenseKeyframe,
     views: usize,
     forward_views: usize,
@@ -278,6 +283,7 @@ fn run(
                 cur = Some(Current {
                     id,
                     t: frame.t,
+                    pyramid: Arc::new(Pyramid::from_u8(&frame.image, NUM_LEVELS)),
                     image: frame.image,
                     kf,
                     views,
@@ -309,6 +315,7 @@ fn run(
             keyframe_id: c.id,
             keyframe_t: c.t,
             keyframe_image: c.image.clone(),
+            keyframe_pyramid: c.pyramid.clone(),
             map: Arc::new(c.kf.map()),
             views: c.views,
             forward_views: c.forward_views,

@@ -5,6 +5,7 @@ pub mod config;
 pub mod keyframe_bundle;
 pub mod keyframe_store;
 pub mod map_depth;
+pub mod map_keyframe;
 pub mod mapping_worker;
 pub mod odometry;
 pub mod refinement_worker;

@@ -12,16 +12,19 @@
 //! outcome at a fixed frame lag, which keeps a replay deterministic.
 
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
+use super::map_keyframe::build;
+use super::mapping_worker::MapSnapshot;
 use super::takeoff::{
     RefinedTakeoff, TakeoffRecord, TakeoffRig, bundle_adjust_takeoff, refine_takeoff,
 };
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, PixelRays};
 use crate::image::Pyramid;
 use crate::imu::{FrameState, ImuNoise, ImuSample};
 use crate::smoother::photometric_bundle::BundleConfig;
 use crate::tracking::{Keyframe, TrackerConfig};
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use nalgebra::Isometry3;
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -45,10 +48,10 @@ pub struct KeyframeJob {
     pub seq: u64,
     /// The keyframe's record: its state at the start and the views tracked since.
     pub rec: KeyframeRecord,
-    /// The keyframe as installed for tracking (the mapper's depths).
-    pub kf: Keyframe,
+    /// The keyframe (the mapper's depths): built, or to be built on this thread.
+    pub kf: KeyframeToAdjust,
     /// Its image pyramid.
-    pub pyramid: Pyramid,
+    pub pyramid: Arc<Pyramid>,
     /// IMU samples from before the keyframe to after its last view.
     pub imu: Vec<ImuSample>,
     /// The IMU noise to integrate them with (the odometry's, which the pad's measurement may
@@ -64,6 +67,17 @@ pub struct KeyframeJob {
     /// velocity_std_m_s`, m/s, with the smoothness prior made scale-neutral: a first map started
     /// in flight, whose start velocity is only dead-reckoned (`None`: the keyframe window's).
     pub start_velocity_std_m_s: Option<f64>,
+}
+
+/// The keyframe of an adjustment: built by the odometry (a keyframe it tracks), or the mapper's
+/// new map, built here into the tracker's keyframe at the pose given (the tracker's world): a
+/// build is 4-8 ms that the tracking thread then does not spend in a frame.
+pub enum KeyframeToAdjust {
+    Built(Keyframe),
+    Mapped {
+        snapshot: MapSnapshot,
+        t_world_cam: Isometry3<f64>,
+    },
 }
 
 /// One refinement pass of the take-off.
@@ -89,9 +103,13 @@ pub struct RefineOutcome {
 }
 
 pub enum RefineResult {
-    /// The keyframe rebuilt with the adjusted depths, `None` if it was not adjusted (too few
-    /// views, an unsound solution).
-    Keyframe(Option<ReadyKeyframe>),
+    /// The keyframe rebuilt with the adjusted depths (`adjusted`, `None` if it was not adjusted:
+    /// too few views, an unsound solution), and the keyframe of the mapper's depths if it was
+    /// built here ([`KeyframeToAdjust::Mapped`]).
+    Keyframe {
+        adjusted: Option<ReadyKeyframe>,
+        unadjusted: Option<Box<Keyframe>>,
+    },
     /// The refined take-off, `None` if the pass failed (the first map is then installed as is).
     Takeoff(Option<RefinedTakeoff>),
 }
@@ -117,6 +135,8 @@ pub struct RefineSettings {
     pub t_body_cam: Isometry3<f64>,
     pub tracking: TrackerConfig,
     pub keyframe_bundle: KeyframeBundleConfig,
+    /// The camera's pixel rays (keyframes built by lookup).
+    pub rays: Arc<PixelRays>,
     /// The thread's nice value is raised by this much ([`super::thread_priority`]).
     pub nice_increment: i32,
 }
@@ -194,7 +214,27 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
         let started = Instant::now();
         let seq = job.seq();
         let result = match &job {
-            RefineJob::Keyframe(j) => RefineResult::Keyframe(adjust_keyframe(s, j)),
+            RefineJob::Keyframe(j) => {
+                let built = match &j.kf {
+                    KeyframeToAdjust::Built(_) => None,
+                    KeyframeToAdjust::Mapped {
+                        snapshot,
+                        t_world_cam,
+                    } => Some(Box::new(Keyframe {
+                        t_world_cam: *t_world_cam,
+                        ..build(snapshot, Vec::new(), &s.rays, &s.tracking)
+                    })),
+                };
+                let kf = match (&j.kf, &built) {
+                    (KeyframeToAdjust::Built(k), _) => k,
+                    (_, Some(k)) => &**k,
+                    (KeyframeToAdjust::Mapped { .. }, None) => unreachable!("built above"),
+                };
+                RefineResult::Keyframe {
+                    adjusted: adjust_keyframe(s, j, kf),
+                    unadjusted: built,
+                }
+            }
             RefineJob::Takeoff(j) => RefineResult::Takeoff(refine(j)),
         };
         let outcome = RefineOutcome {
@@ -208,7 +248,7 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
     }
 }
 
-fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyframe> {
+fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob, kf: &Keyframe) -> Option<ReadyKeyframe> {
     let base = &s.keyframe_bundle;
     let mut cfg = KeyframeBundleConfig {
         imu_rotation_noise_factor: base.imu_rotation_noise_factor * job.rotation_noise_scale,
@@ -223,7 +263,7 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyfram
     let cfg = &cfg;
     let a = bundle_adjust_keyframe(
         &job.rec,
-        &job.kf,
+        kf,
         &job.pyramid,
         &job.imu,
         s.t_body_cam,
@@ -233,14 +273,14 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob) -> Option<ReadyKeyfram
         cfg,
     )?;
     let last_view = *a.views.last()?;
-    let t_world_cam = a.keyframe_state.map_or(job.kf.t_world_cam, |x| {
+    let t_world_cam = a.keyframe_state.map_or(kf.t_world_cam, |x| {
         crate::tracking::pose_of(&x) * s.t_body_cam
     });
-    let keyframe = Keyframe::new(
-        job.kf.id,
-        job.kf.t,
+    let keyframe = Keyframe::from_rays(
+        kf.id,
+        kf.t,
         &job.pyramid,
-        &s.camera,
+        &s.rays,
         t_world_cam,
         &a.points,
         &s.tracking,

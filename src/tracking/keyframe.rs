@@ -3,7 +3,7 @@
 //! when the keyframe is made (`T_w^i`, `p_t` and `J_F^{r_ph}` are constant during tracking).
 
 use super::config::{NUM_LEVELS, TrackerConfig};
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, PixelRays};
 use crate::geometry::hat;
 use crate::image::{Image, Pyramid, bilinear, bilinear_with_gradient};
 use crate::time::TimeNs;
@@ -72,27 +72,48 @@ impl Keyframe {
         points: &[DepthPoint],
         cfg: &TrackerConfig,
     ) -> Self {
+        let p3 = back_project(points, |u, v| camera.unproject(&Vector2::new(u, v)));
+        Self::from_points_m(id, t, pyramid, camera, t_world_cam, p3, cfg)
+    }
+
+    /// [`Keyframe::new`] with the points' rays looked up in `rays` (the same keyframe, without
+    /// unprojecting each point).
+    pub fn from_rays(
+        id: u32,
+        t: TimeNs,
+        pyramid: &Pyramid,
+        rays: &PixelRays,
+        t_world_cam: Isometry3<f64>,
+        points: &[DepthPoint],
+        cfg: &TrackerConfig,
+    ) -> Self {
+        let p3 = back_project(points, |u, v| rays.ray(u, v));
+        Self::from_points_m(id, t, pyramid, rays.camera(), t_world_cam, p3, cfg)
+    }
+
+    /// The keyframe of points `p3` (keyframe camera frame, m).
+    fn from_points_m(
+        id: u32,
+        t: TimeNs,
+        pyramid: &Pyramid,
+        camera: &CameraModel,
+        t_world_cam: Isometry3<f64>,
+        p3: Vec<Vector3<f64>>,
+        cfg: &TrackerConfig,
+    ) -> Self {
+        // The same 3-D point projects to the right place at every level because the level
+        // models are exact rescalings.
         let cameras: Vec<CameraModel> = (0..pyramid.num_levels())
             .map(|l| camera.scaled_to_level(l as u32))
             .collect();
-        // Back-project once at level 0; the same 3-D point projects to the right place at every
-        // level because the level models are exact rescalings.
-        let mut p3: Vec<Vector3<f64>> = Vec::with_capacity(points.len());
-        for p in points {
-            if !(p.inv_depth_m_inv.is_finite() && p.inv_depth_m_inv > 0.0) {
-                continue;
-            }
-            let Some(ray) = camera.unproject(&Vector2::new(p.u_px as f64, p.v_px as f64)) else {
-                continue;
-            };
-            p3.push(ray / p.inv_depth_m_inv as f64);
-        }
+        // Distorted once: a level's pixel is then an affine map of it (exactly `project`'s).
+        let xd: Vec<Option<Vector2<f64>>> = p3.iter().map(|p| camera.distorted(p)).collect();
         let mut depths: Vec<f64> = p3.iter().map(|p| p.z).collect();
         let median_depth_m = median(&mut depths).unwrap_or(1.0);
         let mut levels = Vec::with_capacity(pyramid.num_levels());
         for (l, cam) in cameras.iter().enumerate() {
             let li = l.min(NUM_LEVELS - 1);
-            levels.push(build_level(pyramid, l, cam, &p3, cfg, li));
+            levels.push(build_level(pyramid, l, cam, (&p3, &xd), cfg, li));
         }
         Keyframe {
             id,
@@ -167,7 +188,7 @@ fn build_level(
     pyr: &Pyramid,
     level: usize,
     cam: &CameraModel,
-    points: &[Vector3<f64>],
+    (points, distorted): (&[Vector3<f64>], &[Option<Vector2<f64>>]),
     cfg: &TrackerConfig,
     li: usize,
 ) -> LevelPoints {
@@ -183,8 +204,10 @@ fn build_level(
     let (cw, ch) = (img.width().div_ceil(cell), img.height().div_ceil(cell));
     // Best point per cell: (gradient², index, u, v).
     let mut best: Vec<Option<(f32, usize, f32, f32)>> = vec![None; cw * ch];
-    for (i, p) in points.iter().enumerate() {
-        let Some(uv) = cam.project(p) else { continue };
+    for (i, xd) in distorted.iter().enumerate() {
+        let Some(uv) = xd.map(|xd| cam.pixel_of_distorted(&xd)) else {
+            continue;
+        };
         if !cam.in_image(&uv, border_px.max(1.0)) {
             continue;
         }
@@ -235,6 +258,25 @@ fn build_level(
         });
     }
     out
+}
+
+/// The points with a positive finite inverse depth whose pixel has a ray (`ray`), in the
+/// keyframe camera frame, m.
+fn back_project(
+    points: &[DepthPoint],
+    ray: impl Fn(f64, f64) -> Option<Vector3<f64>>,
+) -> Vec<Vector3<f64>> {
+    let mut p3 = Vec::with_capacity(points.len());
+    for p in points {
+        if !(p.inv_depth_m_inv.is_finite() && p.inv_depth_m_inv > 0.0) {
+            continue;
+        }
+        let Some(r) = ray(p.u_px as f64, p.v_px as f64) else {
+            continue;
+        };
+        p3.push(r / p.inv_depth_m_inv as f64);
+    }
+    p3
 }
 
 /// Eq. 26: `J = ∇I · ∂π/∂p · ∂(exp(ε) p)/∂ε`, with `∂(exp(ε) p)/∂ε = [−[p]×, I]` for `ε = [ω, v]`.
@@ -339,6 +381,52 @@ mod tests {
             let (x, y) = (x as f32, y as f32);
             120.0 + 60.0 * (x * 0.11).sin() * (y * 0.07).cos() + 30.0 * (0.05 * (x + 2.0 * y)).sin()
         })
+    }
+
+    #[test]
+    fn a_keyframe_from_looked_up_rays_is_the_one_unprojected() {
+        let cam = CameraModel::euroc_cam0();
+        let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        pyr.fill_from_f32(&smooth(cam.width, cam.height));
+        // Integer pixels (looked up), a few off the grid (unprojected), one without depth.
+        let mut points: Vec<DepthPoint> = (0..2000)
+            .map(|i| DepthPoint {
+                u_px: (13 + (i * 37) % 720) as f32,
+                v_px: (11 + (i * 53) % 450) as f32,
+                inv_depth_m_inv: 0.2 + 0.001 * (i % 500) as f32,
+            })
+            .collect();
+        points.push(DepthPoint {
+            u_px: 100.25,
+            v_px: 200.5,
+            inv_depth_m_inv: 0.5,
+        });
+        points.push(DepthPoint {
+            u_px: 300.0,
+            v_px: 200.0,
+            inv_depth_m_inv: f32::NAN,
+        });
+        let cfg = TrackerConfig::default();
+        let pose = Isometry3::translation(0.1, 0.2, 0.3);
+        let a = Keyframe::new(4, TimeNs(5), &pyr, &cam, pose, &points, &cfg);
+        let b = Keyframe::from_rays(
+            4,
+            TimeNs(5),
+            &pyr,
+            &PixelRays::new(&cam),
+            pose,
+            &points,
+            &cfg,
+        );
+        assert!(a.num_points() > 1000, "{}", a.num_points());
+        assert_eq!(a.median_depth_m, b.median_depth_m);
+        assert_eq!(a.levels.len(), b.levels.len());
+        for (la, lb) in a.levels.iter().zip(&b.levels) {
+            assert_eq!(la.p_kf_m, lb.p_kf_m);
+            assert_eq!(la.intensity, lb.intensity);
+            assert_eq!(la.jacobian, lb.jacobian);
+            assert_eq!(la.weight, lb.weight);
+        }
     }
 
     #[test]

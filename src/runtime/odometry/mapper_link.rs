@@ -5,6 +5,7 @@
 
 use super::*;
 use crate::mapping::semidense::MapPoint;
+use crate::runtime::map_keyframe::{build, depth_points};
 use nalgebra::{Point3, Vector2};
 
 impl Odometry {
@@ -229,7 +230,7 @@ impl Odometry {
 
     /// Keyframe adjustments come back frames after they are sent: in real time, or offline with
     /// `[keyframe_bundle] lag_frames` (which emulates it).
-    fn adjustments_late(&self) -> bool {
+    pub(super) fn adjustments_late(&self) -> bool {
         self.cfg.realtime || self.cfg.keyframe_bundle.lag_frames > 0
     }
 
@@ -261,20 +262,22 @@ impl Odometry {
         // forward views adds no parallax in a turn on the spot.
         let b = &self.cfg.bootstrap;
         let on_the_spot = self.on_the_spot(&(self.mapper_from_world.inverse() * s.map.t_world_cam));
-        let pyramid = || Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
         let fill = if self.phase == Phase::Tracking
             && is_new
             && on_the_spot
             && n < b.fill_depthless_below_points
             && let Some(median_inv) = median_inv_depth(&s.map).or(self.last_median_inv_depth)
         {
-            let pyr = pyramid();
-            let f = depthless_points(&pyr, &s.map, median_inv, &self.cfg.tracking);
-            Some((pyr, f))
+            Some(depthless_points(
+                &s.keyframe_pyramid,
+                &s.map,
+                median_inv,
+                &self.cfg.tracking,
+            ))
         } else {
             None
         };
-        let n_fill = fill.as_ref().map_or(0, |f| f.1.len());
+        let n_fill = fill.as_ref().map_or(0, Vec::len);
         let install = match self.phase {
             Phase::Initializing => {
                 let mut depths: Vec<f32> = s
@@ -320,39 +323,24 @@ impl Odometry {
         if !install {
             return;
         }
-        let mut pts = depth_points(&s.map);
         let filled = fill.is_some();
-        let pyr = match fill {
-            Some((pyr, f)) => {
-                pts.extend(f);
-                pyr
-            }
-            None => pyramid(),
-        };
-        let kf = Keyframe::new(
-            s.keyframe_id,
-            s.keyframe_t,
-            &pyr,
-            &self.rig.camera,
-            self.mapper_from_world.inverse() * s.map.t_world_cam,
-            &pts,
-            &self.cfg.tracking,
-        );
-        if self.phase == Phase::Initializing && self.send_takeoff(&kf, s) {
-            return; // the first map will be triangulated again from the refined take-off
-        }
-        let kf = if self.phase == Phase::Tracking
+        // A new keyframe with enough views goes to its adjustment, which builds it on the
+        // refinement thread and hands it back with the adjusted one. Any other is built here.
+        if self.phase == Phase::Tracking
             && is_new
             && !filled
             && self.adjustment_views(s.keyframe_id) == AdjustmentViews::Enough
+            && self.send_keyframe_adjustment(s)
         {
-            match self.send_keyframe_adjustment(kf, pyr, s) {
-                Ok(()) => return, // installed when the adjustment is back
-                Err(kf) => *kf,
-            }
-        } else {
-            kf
+            return;
+        }
+        let kf = Keyframe {
+            t_world_cam: self.mapper_from_world.inverse() * s.map.t_world_cam,
+            ..build(s, fill.unwrap_or_default(), &self.rays, &self.cfg.tracking)
         };
+        if self.phase == Phase::Initializing && self.send_takeoff(&kf, s) {
+            return; // the first map will be triangulated again from the refined take-off
+        }
         self.install_keyframe(kf, s, is_new, filled, false);
     }
 
@@ -421,11 +409,11 @@ impl Odometry {
         }
         let mut pts = depth_points(&map);
         pts.extend(fill);
-        let kf = Keyframe::new(
+        let kf = Keyframe::from_rays(
             id,
             t,
             pyr,
-            &self.rig.camera,
+            &self.rays,
             t_world_cam,
             &pts,
             &self.cfg.tracking,
@@ -435,6 +423,7 @@ impl Odometry {
             keyframe_id: id,
             keyframe_t: t,
             keyframe_image: image.clone(),
+            keyframe_pyramid: Arc::new(pyr.clone()),
             map: Arc::new(map),
             views: 0,
             forward_views: 0,
@@ -609,18 +598,6 @@ fn new_keyframe_ready(
         || (forward_views >= b.min_keyframe_forward_views
             && !(realtime && views == AdjustmentViews::Awaited))
         || (realtime && views == AdjustmentViews::Enough)
-}
-
-/// A map's points as the tracker's keyframe takes them.
-fn depth_points(map: &SemidenseMap) -> Vec<DepthPoint> {
-    map.points
-        .iter()
-        .map(|p| DepthPoint {
-            u_px: p.u_px,
-            v_px: p.v_px,
-            inv_depth_m_inv: p.inv_depth_m_inv,
-        })
-        .collect()
 }
 
 /// The keyframe's level-0 gradient pixels (as the tracker selects them) in cells of its image

@@ -65,7 +65,7 @@ use super::refinement_worker::{
 use super::scale_observer::{ScaleObserver, ScaleObserverConfig, ScaleSample};
 use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
 use super::true_view_poses::TrueCameraPoses;
-use crate::camera::{CameraModel, Vignette, correct_in_place};
+use crate::camera::{CameraModel, PixelRays, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::scale_alignment::AlignmentPrior;
@@ -78,7 +78,7 @@ use crate::smoother::photometric_bundle::BundleConfig;
 use crate::smoother::{KeyframeWindow, RelativePose, WindowConfig};
 use crate::time::TimeNs;
 use crate::tracking::{
-    DepthPoint, FlagReason, Keyframe, NUM_LEVELS, TrackResult, Tracker, TrackerConfig, pose_of,
+    DepthPoint, FlagReason, Keyframe, TrackResult, Tracker, TrackerConfig, pose_of,
     select_gradient_pixels,
 };
 use nalgebra::{Isometry3, Vector3};
@@ -462,7 +462,7 @@ fn textured_pyramid(cam: &CameraModel) -> Pyramid {
     let img = Image::from_fn(cam.width, cam.height, |x, y| {
         128.0f32 + 60.0 * ((x as f32) * 0.3).sin() * ((y as f32) * 0.25).cos()
     });
-    let mut pyr = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+    let mut pyr = Pyramid::new(cam.width, cam.height, crate::tracking::NUM_LEVELS);
     pyr.fill_from_f32(&img);
     pyr
 }
@@ -614,10 +614,6 @@ pub struct RestImuDensity {
     pub rotation_noise_scale: f64,
 }
 
-/// At most this many frames are tracked again when a keyframe adjustment comes back late (more:
-/// the current state is moved by the correction instead).
-const MAX_CATCH_UP_FRAMES: usize = 30;
-
 /// A job sent to the refinement thread, awaited.
 struct PendingRefinement {
     seq: u64,
@@ -630,8 +626,10 @@ enum PendingKind {
     Keyframe {
         /// Tracked state of the last view handed over.
         tracked_last: FrameState,
-        /// The keyframe as the mapper built it, installed if the adjustment fails.
-        unadjusted: Box<Keyframe>,
+        /// The keyframe as the mapper built it, installed if the adjustment fails (`None`: being
+        /// built on the refinement thread, which hands it back; posed at `unadjusted_pose`).
+        unadjusted: Option<Box<Keyframe>>,
+        unadjusted_pose: Isometry3<f64>,
         /// Its snapshot.
         snapshot: MapSnapshot,
         /// The keyframe is the one tracked (installed with guessed depths), not a new one.
@@ -658,7 +656,10 @@ pub struct Odometry {
     refiner: Option<RefinementThread>,
     /// The refinement under way, if any.
     refining: Option<PendingRefinement>,
-    /// Frames tracked while a keyframe adjustment is under way: tracked again once it is back.
+    /// The rays of the camera's pixels (the keyframes' points back-projected by lookup).
+    rays: Arc<PixelRays>,
+    /// Frames tracked while a keyframe adjustment is under way (the newest
+    /// [`Self::catch_up_limit`]): tracked again once it is back.
     catch_up: Vec<(TimeNs, Arc<Image<u8>>)>,
     refine_seq: u64,
     /// Jobs sent to the refinement thread whose outcome has not been taken (0 or 1).
@@ -814,6 +815,7 @@ impl Odometry {
                 true_view_poses: cfg.mapping_true_view_poses.clone(),
             },
         );
+        let rays = Arc::new(PixelRays::new(&rig.camera));
         let refiner = ((cfg.keyframe_bundle.enabled || cfg.bootstrap.refine_takeoff_passes > 0)
             && cfg.tracking.use_vision)
             .then(|| {
@@ -822,6 +824,7 @@ impl Odometry {
                     t_body_cam: rig.t_body_cam,
                     tracking: cfg.tracking.clone(),
                     keyframe_bundle: cfg.keyframe_bundle.clone(),
+                    rays: rays.clone(),
                     nice_increment: cfg.bootstrap.refinement_nice,
                 })
             });
@@ -831,6 +834,7 @@ impl Odometry {
             mapping: Some(mapping),
             refiner,
             refining: None,
+            rays,
             catch_up: Vec::new(),
             refine_seq: 0,
             refine_outstanding: 0,
@@ -1243,10 +1247,13 @@ impl Odometry {
         {
             self.zero_velocity_update(&mut result);
         }
-        if self.phase == Phase::Tracking
-            && self.adjusting_keyframe().is_some()
-            && self.catch_up.len() < MAX_CATCH_UP_FRAMES
+        let max_catch_up = self.catch_up_limit();
+        if self.phase == Phase::Tracking && self.adjusting_keyframe().is_some() && max_catch_up > 0
         {
+            // The newest ones only.
+            if self.catch_up.len() >= max_catch_up {
+                self.catch_up.remove(0);
+            }
             self.catch_up.push((t, image.clone()));
         }
         if self.phase == Phase::Tracking && result.flag.is_none() {

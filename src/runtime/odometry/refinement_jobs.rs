@@ -4,6 +4,8 @@
 
 use super::*;
 use crate::runtime::keyframe_bundle::evenly_spaced;
+use crate::runtime::map_keyframe::build;
+use crate::runtime::refinement_worker::KeyframeToAdjust;
 
 impl Odometry {
     /// Sends one refinement pass of the take-off whose first map `kf` (snapshot `s`) is ready to
@@ -74,35 +76,38 @@ impl Odometry {
         self.send_refinement(job, kind).is_ok()
     }
 
-    /// Hands new keyframe `kf` (image pyramid `pyramid`, snapshot `s`) to the in-flight keyframe
-    /// adjustment with the frames tracked since it was started; it is installed for tracking when
-    /// the adjustment is back. `Err(kf)` if it was not sent (thread busy in real time).
-    pub(super) fn send_keyframe_adjustment(
-        &mut self,
-        kf: Keyframe,
-        pyramid: Pyramid,
-        s: &MapSnapshot,
-    ) -> Result<(), Box<Keyframe>> {
+    /// Hands the new keyframe of snapshot `s` to the in-flight keyframe adjustment with the
+    /// frames tracked since it was started; the refinement thread builds it into the tracker's
+    /// keyframe (posed in the tracker's world as it stands now) and it is installed for tracking
+    /// when the adjustment is back. `false` if it was not sent (thread busy in real time).
+    pub(super) fn send_keyframe_adjustment(&mut self, s: &MapSnapshot) -> bool {
         let Some(rec) = self.kf_record.take() else {
-            return Err(Box::new(kf));
+            return false;
         };
-        self.send_keyframe_job(rec, kf, pyramid, s.clone(), false)
+        let kf = KeyframeToAdjust::Mapped {
+            snapshot: s.clone(),
+            t_world_cam: self.mapper_from_world.inverse() * s.map.t_world_cam,
+        };
+        self.send_keyframe_job(rec, kf, s.clone(), false)
     }
 
-    /// Hands keyframe `kf` (image pyramid `pyramid`, snapshot `s`) with the views of `rec` to the
+    /// Hands keyframe `kf` (of snapshot `s`) with the views of `rec` to the
     /// keyframe adjustment: a new keyframe, or the `tracked` one installed with guessed depths
-    /// (adjusted with its depths free). `Err(kf)` if it was not sent (no views, or the thread busy
+    /// (adjusted with its depths free). `false` if it was not sent (no views, or the thread busy
     /// in real time).
     fn send_keyframe_job(
         &mut self,
         rec: KeyframeRecord,
-        kf: Keyframe,
-        pyramid: Pyramid,
+        kf: KeyframeToAdjust,
         s: MapSnapshot,
         tracked: bool,
-    ) -> Result<(), Box<Keyframe>> {
+    ) -> bool {
         let Some(tracked_last) = rec.views.last().map(|v| v.1) else {
-            return Err(Box::new(kf));
+            return false;
+        };
+        let (unadjusted, unadjusted_pose) = match &kf {
+            KeyframeToAdjust::Built(k) => (Some(Box::new(k.clone())), k.t_world_cam),
+            KeyframeToAdjust::Mapped { t_world_cam, .. } => (None, *t_world_cam),
         };
         // (From the previous keyframe when it joins the adjustment.)
         let t0 = rec
@@ -117,8 +122,8 @@ impl Odometry {
         let job = RefineJob::Keyframe(Box::new(KeyframeJob {
             seq: self.refine_seq,
             rec,
-            kf: kf.clone(),
-            pyramid,
+            kf,
+            pyramid: s.keyframe_pyramid.clone(),
             imu,
             noise: self.imu_noise,
             // The pad's measurement of the gyro (1 before it).
@@ -132,14 +137,12 @@ impl Odometry {
         }));
         let kind = PendingKind::Keyframe {
             tracked_last,
-            unadjusted: Box::new(kf),
+            unadjusted,
+            unadjusted_pose,
             snapshot: s,
             tracked,
         };
-        self.send_refinement(job, kind).map_err(|kind| match *kind {
-            PendingKind::Keyframe { unadjusted, .. } => unadjusted,
-            PendingKind::Takeoff { .. } => unreachable!("sent as a keyframe adjustment"),
-        })
+        self.send_refinement(job, kind).is_ok()
     }
 
     /// Queues `job` (offline waiting for room, real time only if there is room) and awaits it.
@@ -221,6 +224,7 @@ impl Odometry {
                     kind:
                         PendingKind::Keyframe {
                             unadjusted,
+                            unadjusted_pose,
                             snapshot,
                             tracked: false,
                             ..
@@ -233,7 +237,8 @@ impl Odometry {
                 self.catch_up.clear();
                 self.stats.refinements_discarded += 1;
                 if self.pending_kf == Some(snapshot.keyframe_id) {
-                    self.install_keyframe(*unadjusted, &snapshot, true, false, false);
+                    let kf = self.unadjusted_keyframe(unadjusted, unadjusted_pose, &snapshot);
+                    self.install_keyframe(kf, &snapshot, true, false, false);
                 }
             }
             return;
@@ -245,16 +250,24 @@ impl Odometry {
         let frames_late = self.frame_number - p.frame_number;
         match (o.result, p.kind) {
             (
-                RefineResult::Keyframe(adjusted),
+                RefineResult::Keyframe {
+                    adjusted,
+                    unadjusted: built,
+                },
                 PendingKind::Keyframe {
                     tracked_last,
                     unadjusted,
+                    unadjusted_pose,
                     snapshot,
                     tracked,
                 },
             ) => self.apply_keyframe_adjustment(
                 adjusted,
-                (*unadjusted, &snapshot, tracked),
+                (
+                    self.unadjusted_keyframe(unadjusted.or(built), unadjusted_pose, &snapshot),
+                    &snapshot,
+                    tracked,
+                ),
                 &tracked_last,
                 &catch_up,
                 (o.time_s, frames_late),
@@ -374,7 +387,13 @@ impl Odometry {
             .keyframe_bundle_accel_bias_jumps_m_s2
             .push(record.accel_bias_jump_m_s2);
         let cov = *self.tracker.covariance();
-        if catch_up.len() < MAX_CATCH_UP_FRAMES {
+        // The frames kept for the next keyframe that were tracked after the last view and are not
+        // tracked again are moved by the last view's correction.
+        let correction = pose_of(&a.last_view) * pose_of(tracked_last).inverse();
+        let after_last_view = tracked_last.nav.t;
+        if self.catch_up_limit() > 0 || frames_late == 0 {
+            // (`catch_up` holds the newest frames: the IMU spans any before them. Back in the
+            // frame it was sent in, tracking goes on from the last view.)
             let state_now = *self.tracker.state();
             let last_t = self.last_t;
             self.tracker.reset_state(a.last_view, cov);
@@ -398,6 +417,8 @@ impl Odometry {
                 for h in self.history.iter_mut() {
                     if let Some((_, p)) = poses.iter().find(|(t, _)| *t == h.t) {
                         h.t_world_cam = *p;
+                    } else if h.t > after_last_view {
+                        h.t_world_cam = correction * h.t_world_cam;
                     }
                 }
             } else {
@@ -409,12 +430,45 @@ impl Odometry {
             let x = carry_correction(self.tracker.state(), tracked_last, &a.last_view);
             if x.is_finite() {
                 self.tracker.reset_state(x, cov);
+                for h in self.history.iter_mut().filter(|h| h.t > after_last_view) {
+                    h.t_world_cam = correction * h.t_world_cam;
+                }
             }
         }
         self.stats.keyframe_bundle_s.push(time_s);
         self.stats
             .keyframe_bundle_depth_changes
             .push(a.median_inv_depth_change);
+    }
+
+    /// How many of the frames tracked while an adjustment is under way are tracked again when it
+    /// is back (the newest ones): `[keyframe_bundle] max_catch_up_frames` when adjustments come
+    /// back late (real time, or offline with `lag_frames`, which emulates it); otherwise all
+    /// (up to 30; none are, offline, unless an adjustment was sent after the frame's tracking).
+    pub(super) fn catch_up_limit(&self) -> usize {
+        if self.adjustments_late() {
+            self.cfg.keyframe_bundle.max_catch_up_frames
+        } else {
+            30
+        }
+    }
+
+    /// The keyframe of an adjustment's snapshot `s` as the mapper built it: `kf` (built by the
+    /// tracking thread or the refinement thread), or — given up before the refinement thread
+    /// handed it back — built here at `t_world_cam`.
+    fn unadjusted_keyframe(
+        &self,
+        kf: Option<Box<Keyframe>>,
+        t_world_cam: Isometry3<f64>,
+        s: &MapSnapshot,
+    ) -> Keyframe {
+        match kf {
+            Some(k) => *k,
+            None => Keyframe {
+                t_world_cam,
+                ..build(s, Vec::new(), &self.rays, &self.cfg.tracking)
+            },
+        }
     }
 
     /// Keyframe `id`, just installed, was moved by its adjustment to state `x`: the keyframe
@@ -538,9 +592,8 @@ impl Odometry {
             return;
         };
         rec.views = evenly_spaced(&rec.views, max_views);
-        let pyramid = Pyramid::from_u8(&s.keyframe_image, NUM_LEVELS);
         // (Not sent — real time, thread busy: the keyframe stays as the mapper built it.)
-        let _ = self.send_keyframe_job(rec, kf, pyramid, s, true);
+        let _ = self.send_keyframe_job(rec, KeyframeToAdjust::Built(kf), s, true);
     }
 
     /// The tracked keyframe's adjustment with its depths free is under way (real time: it takes
