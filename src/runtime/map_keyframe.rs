@@ -60,6 +60,13 @@ mod tests {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     use std::sync::Arc;
 
+    /// Every other pixel of the 64x48 test image from `(first, first)`, 4 pixels inside.
+    fn every_other_pixel(first: u32) -> impl Iterator<Item = (u32, u32)> {
+        (first..44)
+            .step_by(2)
+            .flat_map(move |v| (first..60).step_by(2).map(move |u| (u, v)))
+    }
+
     fn snapshot() -> MapSnapshot {
         let camera = CameraModel::new(64, 48, [50.0, 50.0, 31.5, 23.5], Distortion::None).unwrap();
         let mut img = Image::<u8>::new(64, 48);
@@ -68,9 +75,7 @@ mod tests {
                 img.set(x, y, (((x / 4 + y / 4) % 2) * 180 + 30) as u8);
             }
         }
-        let points = (4..44)
-            .step_by(2)
-            .flat_map(|v| (4..60).step_by(2).map(move |u| (u, v)))
+        let points = every_other_pixel(4)
             .map(|(u, v)| MapPoint {
                 u_px: u as f32,
                 v_px: v as f32,
@@ -128,9 +133,7 @@ mod tests {
             assert_eq!(a.jacobian, b.jacobian);
         }
         // Extra (depthless-fill) points join the map's: nearer ones on the pixels between its.
-        let extra: Vec<DepthPoint> = (5..43)
-            .step_by(2)
-            .flat_map(|v| (5..59).step_by(2).map(move |u| (u, v)))
+        let extra: Vec<DepthPoint> = every_other_pixel(5)
             .map(|(u, v)| DepthPoint {
                 u_px: u as f32,
                 v_px: v as f32,
