@@ -116,11 +116,12 @@ pub struct KeyframeBundleConfig {
     /// `lag_frames`, which emulates it), the newest this many are tracked again against the
     /// adjusted keyframe when it comes back, from the last view's adjusted state (the IMU across
     /// any frames before them). 0: none; the current state is moved by the last view's
-    /// correction instead ([`carry_correction`]). (Offline without a lag, all are: at most one.) In real time they are tracked again within one frame: 3 frames
-    /// late, all three took that frame 3-13 ms longer, and the tracking thread's whole-frame p99
-    /// was 13.2 ms against 11.2 ms with none (12.6 ms with one), at the same accuracy (demo
-    /// seeds 1-8 in real time: median ATE 1.9 cm with 0 and with 1; docs/odometry-log.md,
-    /// *The tracking thread's whole frame, 17 → 11 ms*).
+    /// correction instead ([`carry_correction`]). (Offline without a lag all are, at most one.)
+    /// In real time they are tracked again within one frame: 3 frames late, that frame took
+    /// 3-13 ms longer. Demo in real time: whole-frame p99 13.4 ms re-tracking all (seeds 1-4),
+    /// 12.6 ms one (seeds 1-8, refreshes then built on a thread), 11.3 ms none (seeds 1-16,
+    /// median ATE 1.89 cm; docs/odometry-log.md, *The tracking thread's whole frame, 17 → 11
+    /// ms*).
     pub max_catch_up_frames: usize,
 }
 

@@ -15,12 +15,15 @@ use super::mapping_worker::MapSnapshot;
 use crate::camera::PixelRays;
 use crate::mapping::semidense::SemidenseMap;
 use crate::tracking::{DepthPoint, Keyframe, TrackerConfig};
+use nalgebra::Isometry3;
 
 /// The tracker's keyframe of snapshot `s` (sampled from its pyramid; `extra` points appended to
-/// the map's: the depthless fill) at the mapper's pose of it.
+/// the map's: the depthless fill) at pose `t_world_cam` (the tracker's world: the mapper's pose
+/// of it moved by the odometry's correction of the mapper's world).
 pub fn build(
     s: &MapSnapshot,
     extra: Vec<DepthPoint>,
+    t_world_cam: Isometry3<f64>,
     rays: &PixelRays,
     cfg: &TrackerConfig,
 ) -> Keyframe {
@@ -31,7 +34,7 @@ pub fn build(
         s.keyframe_t,
         &s.keyframe_pyramid,
         rays,
-        s.map.t_world_cam,
+        t_world_cam,
         &points,
         cfg,
     )
@@ -57,7 +60,7 @@ mod tests {
     use crate::mapping::semidense::MapPoint;
     use crate::time::TimeNs;
     use crate::tracking::NUM_LEVELS;
-    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    use nalgebra::{Translation3, UnitQuaternion};
     use std::sync::Arc;
 
     /// Every other pixel of the 64x48 test image from `(first, first)`, 4 pixels inside.
@@ -110,12 +113,10 @@ mod tests {
         let s = snapshot();
         let rays = PixelRays::new(&s.map.camera);
         let cfg = TrackerConfig::default();
-        let kf = build(&s, Vec::new(), &rays, &cfg);
+        let pose = Isometry3::translation(0.1, 0.2, 0.3);
+        let kf = build(&s, Vec::new(), pose, &rays, &cfg);
         assert_eq!((kf.id, kf.t), (3, s.keyframe_t));
-        assert_eq!(
-            kf.t_world_cam, s.map.t_world_cam,
-            "posed in the mapper's world"
-        );
+        assert_eq!(kf.t_world_cam, pose, "posed where it is told");
         assert!(kf.num_points() > 0, "the checkerboard has gradients");
         // The same as the keyframe of the map's points built directly.
         let points = depth_points(&s.map);
@@ -124,7 +125,7 @@ mod tests {
             s.keyframe_t,
             &s.keyframe_pyramid,
             &s.map.camera,
-            s.map.t_world_cam,
+            pose,
             &points,
             &cfg,
         );
@@ -140,7 +141,7 @@ mod tests {
                 inv_depth_m_inv: 2.0,
             })
             .collect();
-        let more = build(&s, extra, &rays, &cfg);
+        let more = build(&s, extra, pose, &rays, &cfg);
         let near = |k: &Keyframe| {
             k.levels[0]
                 .p_kf_m

@@ -214,27 +214,22 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
         let started = Instant::now();
         let seq = job.seq();
         let result = match &job {
-            RefineJob::Keyframe(j) => {
-                let built = match &j.kf {
-                    KeyframeToAdjust::Built(_) => None,
-                    KeyframeToAdjust::Mapped {
-                        snapshot,
-                        t_world_cam,
-                    } => Some(Box::new(Keyframe {
-                        t_world_cam: *t_world_cam,
-                        ..build(snapshot, Vec::new(), &s.rays, &s.tracking)
-                    })),
-                };
-                let kf = match (&j.kf, &built) {
-                    (KeyframeToAdjust::Built(k), _) => k,
-                    (_, Some(k)) => &**k,
-                    (KeyframeToAdjust::Mapped { .. }, None) => unreachable!("built above"),
-                };
-                RefineResult::Keyframe {
+            RefineJob::Keyframe(j) => match &j.kf {
+                KeyframeToAdjust::Built(kf) => RefineResult::Keyframe {
                     adjusted: adjust_keyframe(s, j, kf),
-                    unadjusted: built,
+                    unadjusted: None,
+                },
+                KeyframeToAdjust::Mapped {
+                    snapshot,
+                    t_world_cam,
+                } => {
+                    let kf = build(snapshot, Vec::new(), *t_world_cam, &s.rays, &s.tracking);
+                    RefineResult::Keyframe {
+                        adjusted: adjust_keyframe(s, j, &kf),
+                        unadjusted: Some(Box::new(kf)),
+                    }
                 }
-            }
+            },
             RefineJob::Takeoff(j) => RefineResult::Takeoff(refine(j)),
         };
         let outcome = RefineOutcome {

@@ -334,10 +334,13 @@ impl Odometry {
         {
             return;
         }
-        let kf = Keyframe {
-            t_world_cam: self.mapper_from_world.inverse() * s.map.t_world_cam,
-            ..build(s, fill.unwrap_or_default(), &self.rays, &self.cfg.tracking)
-        };
+        let kf = build(
+            s,
+            fill.unwrap_or_default(),
+            self.mapper_from_world.inverse() * s.map.t_world_cam,
+            &self.rays,
+            &self.cfg.tracking,
+        );
         if self.phase == Phase::Initializing && self.send_takeoff(&kf, s) {
             return; // the first map will be triangulated again from the refined take-off
         }

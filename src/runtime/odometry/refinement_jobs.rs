@@ -7,6 +7,10 @@ use crate::runtime::keyframe_bundle::evenly_spaced;
 use crate::runtime::map_keyframe::build;
 use crate::runtime::refinement_worker::KeyframeToAdjust;
 
+/// Offline without a lag, frames tracked while an adjustment was out are all tracked again, up to
+/// this many (the bound the catch-up always had).
+const OFFLINE_MAX_CATCH_UP_FRAMES: usize = 30;
+
 impl Odometry {
     /// Sends one refinement pass of the take-off whose first map `kf` (snapshot `s`) is ready to
     /// the refinement thread; it will re-pose and rescale the views and the first map is started
@@ -443,13 +447,14 @@ impl Odometry {
 
     /// How many of the frames tracked while an adjustment is under way are tracked again when it
     /// is back (the newest ones): `[keyframe_bundle] max_catch_up_frames` when adjustments come
-    /// back late (real time, or offline with `lag_frames`, which emulates it); otherwise all
-    /// (up to 30; none are, offline, unless an adjustment was sent after the frame's tracking).
+    /// back late (real time, or offline with `lag_frames`, which emulates it); otherwise all (up
+    /// to [`OFFLINE_MAX_CATCH_UP_FRAMES`]; offline there is at most one, when an adjustment was
+    /// sent after the frame's tracking).
     pub(super) fn catch_up_limit(&self) -> usize {
         if self.adjustments_late() {
             self.cfg.keyframe_bundle.max_catch_up_frames
         } else {
-            30
+            OFFLINE_MAX_CATCH_UP_FRAMES
         }
     }
 
@@ -464,10 +469,7 @@ impl Odometry {
     ) -> Keyframe {
         match kf {
             Some(k) => *k,
-            None => Keyframe {
-                t_world_cam,
-                ..build(s, Vec::new(), &self.rays, &self.cfg.tracking)
-            },
+            None => build(s, Vec::new(), t_world_cam, &self.rays, &self.cfg.tracking),
         }
     }
 
