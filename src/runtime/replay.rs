@@ -9,7 +9,9 @@
 use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
-use super::odometry::{BootstrapConfig, Odometry, OdometryConfig, OdometryStats, Phase, Rig};
+use super::odometry::{
+    BootstrapConfig, FrameTimes, Odometry, OdometryConfig, OdometryStats, Phase, Rig,
+};
 use super::scale_observer::ScaleObserverConfig;
 use super::true_view_poses::TrueCameraPoses;
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
@@ -154,9 +156,9 @@ pub struct ReplayOutput {
     pub frames: Vec<TrackResult>,
     /// The odometry phase of each of `frames`.
     pub phases: Vec<Phase>,
-    /// The tracking thread's whole wall time on each of `frames` ([`super::odometry::OdometryFrame::frame_s`]; with
-    /// ground-truth depth, tracking alone), s.
-    pub frame_s: Vec<f64>,
+    /// The tracking thread's wall time on each of `frames` and its parts
+    /// ([`super::odometry::OdometryFrame::times`]; with ground-truth depth, tracking alone).
+    pub frame_times: Vec<FrameTimes>,
     /// Frames read before the first valid pose (no rest detected yet).
     pub frames_waiting: usize,
     /// What the mapping thread built (empty with ground-truth depth).
@@ -352,7 +354,7 @@ fn replay_full(
         if f.valid {
             out.frames.push(f.result);
             out.phases.push(f.phase);
-            out.frame_s.push(f.frame_s);
+            out.frame_times.push(f.times);
         } else {
             out.frames_waiting += 1;
         }
@@ -403,7 +405,11 @@ fn replay_gt_depth(
             tracker.track(rec.t, &img, &pre)
         };
         let need_kf = k == 0 || result.wants_keyframe;
-        out.frame_s.push(result.time_s);
+        out.frame_times.push(FrameTimes {
+            total_s: result.time_s,
+            tracking_s: result.time_s,
+            ..FrameTimes::default()
+        });
         out.frames.push(result);
         out.phases.push(Phase::Tracking);
         if need_kf && opts.tracker.use_vision {

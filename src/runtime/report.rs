@@ -2,7 +2,7 @@
 //! figures against ground truth, as one flat JSON object with stable keys.
 
 use super::map_depth::{KeyframeDepthError, median};
-use super::odometry::Phase;
+use super::odometry::{FrameTimes, Phase};
 use super::replay::ReplayOutput;
 use crate::dataset::{GroundTruth, StampedPose, Trajectory};
 use crate::eval::stats::{percentile, sorted};
@@ -20,6 +20,45 @@ pub struct ScaleAt {
     pub t_s: f64,
     pub scale_error_pct: f64,
     pub ate_rmse_m: f64,
+}
+
+/// The parts of the tracking thread's slowest frames ([`crate::runtime::odometry::FrameTimes`]),
+/// each the mean over those frames, ms.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct FrameTail {
+    /// Tracked frames at or above the p99 of the whole frame's time.
+    pub frames: usize,
+    pub total_ms: f64,
+    pub maps_ms: f64,
+    pub adjustments_ms: f64,
+    pub tracking_ms: f64,
+    pub window_ms: f64,
+    pub other_ms: f64,
+}
+
+impl FrameTail {
+    /// The mean parts of the frames of `times` whose total is at least `threshold_ms`.
+    fn of(times: &[&FrameTimes], threshold_ms: f64) -> Self {
+        let tail: Vec<_> = times
+            .iter()
+            .filter(|t| t.total_s * 1e3 >= threshold_ms)
+            .collect();
+        if tail.is_empty() {
+            return Self::default();
+        }
+        let mean_ms = |f: &dyn Fn(&FrameTimes) -> f64| {
+            tail.iter().map(|t| f(t) * 1e3).sum::<f64>() / tail.len() as f64
+        };
+        Self {
+            frames: tail.len(),
+            total_ms: mean_ms(&|t| t.total_s),
+            maps_ms: mean_ms(&|t| t.maps_s),
+            adjustments_ms: mean_ms(&|t| t.adjustments_s),
+            tracking_ms: mean_ms(&|t| t.tracking_s),
+            window_ms: mean_ms(&|t| t.window_s),
+            other_ms: mean_ms(&|t| t.other_s()),
+        }
+    }
 }
 
 /// The replay's own figures (the evaluation's are merged in by [`ReplayReport::to_json`]).
@@ -76,6 +115,9 @@ pub struct ReplayReport {
     pub frame_ms_p50: f64,
     pub frame_ms_p99: f64,
     pub frame_ms_max: f64,
+    /// Where the slowest frames' time went: the mean of each part over the tracked frames at or
+    /// above `frame_ms_p99` (what the p99 is made of).
+    pub frame_tail: FrameTail,
     /// Mean accepted Gauss-Newton iterations per frame, summed over levels.
     pub iterations_mean: f64,
     /// Frames whose pose has a non-finite number (must be 0).
@@ -275,14 +317,15 @@ impl ReplayReport {
         let ms = sorted(tracked.iter().map(|r| r.time_s * 1e3));
         let pct = |p: f64| percentile(&ms, p);
         // The same frames' whole time on the tracking thread.
-        let frame_ms = sorted(
-            out.frame_s
-                .iter()
-                .zip(&out.phases)
-                .skip(1)
-                .filter(|(_, p)| **p == Phase::Tracking)
-                .map(|(s, _)| s * 1e3),
-        );
+        let tracked_times: Vec<&FrameTimes> = out
+            .frame_times
+            .iter()
+            .zip(&out.phases)
+            .skip(1)
+            .filter(|(_, p)| **p == Phase::Tracking)
+            .map(|(t, _)| t)
+            .collect();
+        let frame_ms = sorted(tracked_times.iter().map(|t| t.total_s * 1e3));
         let map_ms = sorted(out.mapping.job_times_s.iter().map(|t| t * 1e3));
         let imu_scale = sorted(out.odometry.imu_scale.iter().map(|e| e.scale));
         let imu_scale_pct = |p: f64| percentile_if_any(&imu_scale, p);
@@ -386,6 +429,7 @@ impl ReplayReport {
             frame_ms_p50: percentile(&frame_ms, 50.0),
             frame_ms_p99: percentile(&frame_ms, 99.0),
             frame_ms_max: frame_ms.last().copied().unwrap_or(0.0),
+            frame_tail: FrameTail::of(&tracked_times, percentile(&frame_ms, 99.0)),
             tracking_ms_mean: if ms.is_empty() {
                 0.0
             } else {
@@ -701,6 +745,23 @@ impl ReplayReport {
                 }
             ),
         );
+        let tail = &self.frame_tail;
+        if tail.frames > 0 {
+            row(
+                "slowest 1 % of frames, ms",
+                format!(
+                    "{:.2} in {} frames: maps {:.2}, adjustments {:.2}, tracking {:.2}, window \
+                     {:.2}, other {:.2} (means)",
+                    tail.total_ms,
+                    tail.frames,
+                    tail.maps_ms,
+                    tail.adjustments_ms,
+                    tail.tracking_ms,
+                    tail.window_ms,
+                    tail.other_ms
+                ),
+            );
+        }
         row(
             "GN iterations / frame",
             format!("{:.1}", self.iterations_mean),

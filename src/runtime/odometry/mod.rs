@@ -418,12 +418,38 @@ pub struct OdometryFrame {
     pub valid: bool,
     /// Incremented at every re-initialisation after a loss (MAVLink `reset_counter`).
     pub resets: u32,
-    /// Wall time of [`Odometry::push_frame`] for this frame, s: all the tracking thread did for
-    /// it — the image's corrections, the mapper's and the refinement's results taken in, keyframes
-    /// built and installed, tracking, the keyframe window; offline also the waits for the mapper's
-    /// and the refinement's results at their fixed frames. (`result.time_s` is tracking and the
+    /// The tracking thread's wall time on this frame and where it went.
+    pub times: FrameTimes,
+}
+
+/// The tracking thread's wall time on one frame, s, and its parts: what makes a slow frame slow.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameTimes {
+    /// Wall time of [`Odometry::push_frame`]: all the tracking thread did for the frame — the
+    /// image's corrections, the mapper's and the refinement's results taken in, keyframes built
+    /// and installed, tracking, the keyframe window; offline also the waits for the mapper's and
+    /// the refinement's results at their fixed frames. (`TrackResult::time_s` is tracking and the
     /// window alone.)
-    pub frame_s: f64,
+    pub total_s: f64,
+    /// Taking in the mapper's snapshots: maps turned into the tracker's keyframes and installed
+    /// (offline with the wait for a map due at this frame).
+    pub maps_s: f64,
+    /// Taking in the refinement thread's outcomes: adjusted keyframes installed, the frames
+    /// since tracked again or carried by the correction (offline with the wait for an outcome due).
+    pub adjustments_s: f64,
+    /// The phase's work on the image: tracking against the keyframe (or holding the pose at rest,
+    /// starting the first map).
+    pub tracking_s: f64,
+    /// The keyframe window's solve, on a frame that starts a keyframe.
+    pub window_s: f64,
+}
+
+impl FrameTimes {
+    /// What the parts leave: the image's corrections, starting keyframes and the threads' jobs,
+    /// re-tracking after a return, the rest state's updates.
+    pub fn other_s(&self) -> f64 {
+        (self.total_s - self.maps_s - self.adjustments_s - self.tracking_s - self.window_s).max(0.0)
+    }
 }
 
 /// Sensor description the odometry needs.
@@ -656,6 +682,8 @@ pub struct Odometry {
     refiner: Option<RefinementThread>,
     /// The refinement under way, if any.
     refining: Option<PendingRefinement>,
+    /// The current frame's times, filled in by its parts ([`Odometry::push_frame`]).
+    times: FrameTimes,
     /// The rays of the camera's pixels (the keyframes' points back-projected by lookup).
     rays: Arc<PixelRays>,
     /// Frames tracked while a keyframe adjustment is under way (the newest
@@ -834,6 +862,7 @@ impl Odometry {
             mapping: Some(mapping),
             refiner,
             refining: None,
+            times: FrameTimes::default(),
             rays,
             catch_up: Vec::new(),
             refine_seq: 0,
@@ -957,8 +986,10 @@ impl Odometry {
     /// Processes the frame at `t` (all IMU samples up to at least `t` pushed first).
     pub fn push_frame(&mut self, t: TimeNs, image: Image<u8>) -> OdometryFrame {
         let started = std::time::Instant::now();
+        self.times = FrameTimes::default();
         let mut f = self.process_frame(t, image);
-        f.frame_s = started.elapsed().as_secs_f64();
+        self.times.total_s = started.elapsed().as_secs_f64();
+        f.times = self.times;
         f
     }
 
@@ -971,10 +1002,15 @@ impl Odometry {
         self.frame_number += 1;
         self.tracked_step_m = None;
         self.send_deferred_jobs();
+        let mark = std::time::Instant::now();
         self.collect_snapshots();
+        self.times.maps_s = mark.elapsed().as_secs_f64();
+        let mark = std::time::Instant::now();
         self.collect_refinement();
+        self.times.adjustments_s = mark.elapsed().as_secs_f64();
         let image = Arc::new(image);
         let static_now = self.detector.is_static();
+        let mark = std::time::Instant::now();
         let mut result = match self.phase {
             Phase::WaitingForStart | Phase::Static if static_now => self.hold_static(t, &image),
             Phase::WaitingForStart => {
@@ -986,7 +1022,7 @@ impl Odometry {
                     phase: Phase::WaitingForStart,
                     valid: false,
                     resets: self.stats.resets,
-                    frame_s: 0.0,
+                    times: FrameTimes::default(),
                 };
             }
             Phase::Static => {
@@ -1041,6 +1077,7 @@ impl Odometry {
             }
             Phase::Initializing | Phase::Tracking | Phase::Lost => self.track(t, &image),
         };
+        self.times.tracking_s = mark.elapsed().as_secs_f64();
         // Phase transitions and jobs after tracking.
         let frame = MapFrame {
             t,
@@ -1284,7 +1321,7 @@ impl Odometry {
             phase: self.phase,
             valid: true,
             resets: self.stats.resets,
-            frame_s: 0.0,
+            times: FrameTimes::default(),
         }
     }
 
@@ -1658,6 +1695,7 @@ impl Odometry {
             self.stats.window_gyro_misalignment_history.push((t, phi));
         }
         self.stats.window_solve_s.push(solve_s);
+        self.times.window_s += solve_s;
         // The frame's tracking-thread time includes the window it triggered.
         result.time_s += solve_s;
 
