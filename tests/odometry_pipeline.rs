@@ -767,6 +767,14 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
         let parts_s = f.maps_s + f.adjustments_s + f.tracking_s + f.window_s;
         f.total_s.is_finite() && f.total_s >= r.time_s && parts_s <= f.total_s
     }));
+    // The thread's CPU time over a frame is no more than its wall time (with the clocks'
+    // granularity).
+    #[cfg(target_os = "linux")]
+    assert!(
+        out.frame_times
+            .iter()
+            .all(|f| f.cpu_s.is_some_and(|c| c <= f.total_s + 1e-4))
+    );
     assert!(out.frame_times.iter().any(|f| f.window_s > 0.0));
     assert!(out.frames.iter().all(|r| {
         let p = pose_of(&r.state);

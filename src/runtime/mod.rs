@@ -13,6 +13,7 @@ pub mod replay;
 pub mod report;
 pub mod scale_observer;
 pub mod takeoff;
+pub mod thread_clock;
 pub mod thread_priority;
 pub mod true_view_poses;
 

@@ -34,6 +34,9 @@ pub struct FrameTail {
     pub tracking_ms: f64,
     pub window_ms: f64,
     pub other_ms: f64,
+    /// The tracking thread's CPU time over those frames (`None` where it cannot be read): the
+    /// rest of `total_ms` it spent off its core.
+    pub cpu_ms: Option<f64>,
 }
 
 impl FrameTail {
@@ -57,6 +60,10 @@ impl FrameTail {
             tracking_ms: mean_ms(&|t| t.tracking_s),
             window_ms: mean_ms(&|t| t.window_s),
             other_ms: mean_ms(&|t| t.other_s()),
+            cpu_ms: tail
+                .iter()
+                .all(|t| t.cpu_s.is_some())
+                .then(|| mean_ms(&|t| t.cpu_s.unwrap_or(0.0))),
         }
     }
 }
@@ -751,14 +758,16 @@ impl ReplayReport {
                 "slowest 1 % of frames, ms",
                 format!(
                     "{:.2} in {} frames: maps {:.2}, adjustments {:.2}, tracking {:.2}, window \
-                     {:.2}, other {:.2} (means)",
+                     {:.2}, other {:.2}; on the CPU {} (means)",
                     tail.total_ms,
                     tail.frames,
                     tail.maps_ms,
                     tail.adjustments_ms,
                     tail.tracking_ms,
                     tail.window_ms,
-                    tail.other_ms
+                    tail.other_ms,
+                    tail.cpu_ms
+                        .map_or_else(|| "unknown".to_string(), |c| format!("{c:.2}"))
                 ),
             );
         }

@@ -64,6 +64,7 @@ use super::refinement_worker::{
 };
 use super::scale_observer::{ScaleObserver, ScaleObserverConfig, ScaleSample};
 use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
+use super::thread_clock::thread_cpu_time_s;
 use super::true_view_poses::TrueCameraPoses;
 use crate::camera::{CameraModel, PixelRays, Vignette, correct_in_place};
 use crate::image::{Image, Pyramid};
@@ -442,6 +443,9 @@ pub struct FrameTimes {
     pub tracking_s: f64,
     /// The keyframe window's solve, on a frame that starts a keyframe.
     pub window_s: f64,
+    /// The tracking thread's CPU time over the frame (`None` where the platform cannot tell): what
+    /// `total_s` exceeds it by, the thread waited for a core (preempted) or for the mapper.
+    pub cpu_s: Option<f64>,
 }
 
 impl FrameTimes {
@@ -986,9 +990,13 @@ impl Odometry {
     /// Processes the frame at `t` (all IMU samples up to at least `t` pushed first).
     pub fn push_frame(&mut self, t: TimeNs, image: Image<u8>) -> OdometryFrame {
         let started = std::time::Instant::now();
+        let cpu_started = thread_cpu_time_s();
         self.times = FrameTimes::default();
         let mut f = self.process_frame(t, image);
         self.times.total_s = started.elapsed().as_secs_f64();
+        self.times.cpu_s = cpu_started
+            .zip(thread_cpu_time_s())
+            .map(|(a, b)| (b - a).max(0.0));
         f.times = self.times;
         f
     }
