@@ -8,7 +8,7 @@ use crate::dataset::{GroundTruth, StampedPose, Trajectory};
 use crate::eval::stats::{percentile, sorted};
 use crate::eval::velocity::velocity_errors;
 use crate::eval::{EvalOptions, EvalReport, alignment, evaluate};
-use crate::tracking::pose_of;
+use crate::tracking::{TrackResult, pose_of};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -313,25 +313,18 @@ pub struct ReplayReport {
 
 impl ReplayReport {
     pub fn new(out: &ReplayOutput, vision: bool, depth: &str, realtime: bool) -> Self {
-        let tracked: Vec<_> = out
+        // The tracked frames' results and their whole time on the tracking thread.
+        let (tracked, tracked_times): (Vec<&TrackResult>, Vec<&FrameTimes>) = out
             .frames
             .iter()
+            .zip(&out.frame_times)
             .zip(&out.phases)
             .skip(1)
             .filter(|(_, p)| **p == Phase::Tracking)
-            .map(|(r, _)| r)
-            .collect();
+            .map(|(frame, _)| frame)
+            .unzip();
         let ms = sorted(tracked.iter().map(|r| r.time_s * 1e3));
         let pct = |p: f64| percentile(&ms, p);
-        // The same frames' whole time on the tracking thread.
-        let tracked_times: Vec<&FrameTimes> = out
-            .frame_times
-            .iter()
-            .zip(&out.phases)
-            .skip(1)
-            .filter(|(_, p)| **p == Phase::Tracking)
-            .map(|(t, _)| t)
-            .collect();
         let frame_ms = sorted(tracked_times.iter().map(|t| t.total_s * 1e3));
         let map_ms = sorted(out.mapping.job_times_s.iter().map(|t| t * 1e3));
         let imu_scale = sorted(out.odometry.imu_scale.iter().map(|e| e.scale));
