@@ -2,6 +2,8 @@
 
 pub mod adjust_check;
 pub mod config;
+pub mod guessed_keyframe;
+pub mod keyframe_builder;
 pub mod keyframe_bundle;
 pub mod keyframe_store;
 pub mod map_depth;

@@ -141,6 +141,9 @@ pub struct Tracker {
     t_body_cam: Isometry3<f64>,
     noise: ImuNoise,
     frame: Pyramid,
+    /// `frame` was handed over ([`Tracker::swap_frame_pyramid`]) and holds no frame until the
+    /// next is loaded.
+    frame_handed_over: bool,
     keyframe: Option<Keyframe>,
     state: FrameState,
     cov: Matrix15,
@@ -170,6 +173,7 @@ impl Tracker {
         let max_pts = cfg.max_points_per_level.iter().copied().max().unwrap_or(0);
         Tracker {
             frame: Pyramid::new(camera.width, camera.height, NUM_LEVELS),
+            frame_handed_over: false,
             cfg,
             cameras,
             t_body_cam,
@@ -201,8 +205,30 @@ impl Tracker {
     /// with its gradients (computed here on first use: tracking itself needs none of the
     /// current frame's).
     pub fn frame_pyramid(&mut self) -> &Pyramid {
+        debug_assert!(
+            !self.frame_handed_over,
+            "Tracker::frame_pyramid after swap_frame_pyramid and before the next frame"
+        );
         self.frame.ensure_gradients();
         &self.frame
+    }
+
+    /// Hands the pyramid of the last frame over (its gradients perhaps not computed yet:
+    /// [`Pyramid::ensure_gradients`]) for a keyframe built on another thread, and keeps `buffer`
+    /// for the next frame to be loaded into: the frame changes hands without a copy on the
+    /// tracking thread. [`Tracker::frame_pyramid`] has no frame until the next one is loaded. A
+    /// `buffer` of another size than the frame's is dropped and a copy is handed over instead.
+    pub fn swap_frame_pyramid(&mut self, buffer: Pyramid) -> Pyramid {
+        let same_size = buffer.num_levels() == self.frame.num_levels()
+            && (0..buffer.num_levels()).all(|l| {
+                let (a, b) = (buffer.level(l), self.frame.level(l));
+                (a.width(), a.height()) == (b.width(), b.height())
+            });
+        if !same_size {
+            return self.frame.clone();
+        }
+        self.frame_handed_over = true;
+        std::mem::replace(&mut self.frame, buffer)
     }
     /// Camera pose of the current state, `T_wb · T_bc`.
     pub fn t_world_cam(&self) -> Isometry3<f64> {
@@ -236,6 +262,7 @@ impl Tracker {
     /// Loads an image as the current frame without tracking it (the first frame).
     pub fn load_frame(&mut self, image: &Image<u8>) {
         self.frame.fill_from_u8(image);
+        self.frame_handed_over = false;
     }
 
     /// Replaces the state (start-up, re-initialisation).
@@ -292,6 +319,7 @@ impl Tracker {
     pub fn track(&mut self, t: TimeNs, image: &Image<u8>, pre: &Preintegration) -> TrackResult {
         let started = Instant::now();
         self.frame.fill_levels_from_u8(image);
+        self.frame_handed_over = false;
         let xi = self.state;
         let x_pred = FrameState {
             nav: pre.predict(&xi.nav, &xi.bias),
@@ -843,12 +871,8 @@ mod tests {
     use crate::tracking::photometric::accumulate;
     use nalgebra::{Translation3, UnitQuaternion, Vector3, Vector6};
 
-    /// `collapsed_log_gain`: a solution whose gain relative to the keyframe has fallen below
-    /// e^-1 asks for another keyframe (and the odometry leaves a stored keyframe for it); a flagged
-    /// frame or the option off does not. A keyframe older than the age limit asks for another.
-    #[test]
-    fn a_collapsing_brightness_or_an_old_keyframe_asks_for_another() {
-        let cam = CameraModel::euroc_cam0();
+    /// A tracker with the default settings, at rest at the origin.
+    fn tracker_at_origin(cam: &CameraModel) -> Tracker {
         let state = FrameState {
             nav: crate::imu::NavState {
                 t: TimeNs(0),
@@ -858,14 +882,23 @@ mod tests {
             },
             bias: crate::imu::ImuBias::default(),
         };
-        let mut tracker = Tracker::new(
+        Tracker::new(
             TrackerConfig::default(),
-            &cam,
+            cam,
             Isometry3::identity(),
             ImuNoise::euroc_adis16448(),
             state,
             Matrix15::identity(),
-        );
+        )
+    }
+
+    /// `collapsed_log_gain`: a solution whose gain relative to the keyframe has fallen below
+    /// e^-1 asks for another keyframe (and the odometry leaves a stored keyframe for it); a flagged
+    /// frame or the option off does not. A keyframe older than the age limit asks for another.
+    #[test]
+    fn a_collapsing_brightness_or_an_old_keyframe_asks_for_another() {
+        let cam = CameraModel::euroc_cam0();
+        let mut tracker = tracker_at_origin(&cam);
         let img = Image::from_fn(cam.width, cam.height, |x, y| {
             120.0 + 60.0 * ((x as f32) * 0.09).sin() * ((y as f32) * 0.06).cos()
         });
@@ -911,6 +944,50 @@ mod tests {
         tracker.cfg.collapsed_log_gain = 0.0;
         assert!(!tracker.brightness_collapsed(&res));
         assert!(!tracker.wants_keyframe(&res, 1.0, 1.0, 0.0));
+    }
+
+    /// `swap_frame_pyramid`: the frame's pyramid is handed over as loaded (no copy) and the next
+    /// frame is loaded into the buffer given; a buffer of another size is refused and a copy of
+    /// the frame handed over instead.
+    #[test]
+    fn the_frame_pyramid_changes_hands_and_the_next_frame_loads_into_the_buffer_given() {
+        let cam = CameraModel::euroc_cam0();
+        let mut tracker = tracker_at_origin(&cam);
+        let frame = |k: f32| {
+            Image::from_fn(cam.width, cam.height, |x, y| {
+                (100.0 + k + 40.0 * ((x as f32) * 0.07).sin() * ((y as f32) * 0.05).cos()) as u8
+            })
+        };
+        let (a, b) = (frame(0.0), frame(30.0));
+        tracker.load_frame(&a);
+        let mut buffer = Pyramid::new(cam.width, cam.height, NUM_LEVELS);
+        buffer.fill_from_u8(&b); // anything: overwritten by the next frame
+        let mut handed = tracker.swap_frame_pyramid(buffer);
+        handed.ensure_gradients();
+        let expected = Pyramid::from_u8(&a, NUM_LEVELS);
+        for l in 0..NUM_LEVELS {
+            assert_eq!(
+                handed.level(l).data(),
+                expected.level(l).data(),
+                "level {l}"
+            );
+            assert_eq!(handed.gradients(l).0.data(), expected.gradients(l).0.data());
+        }
+        tracker.load_frame(&b);
+        let loaded = Pyramid::from_u8(&b, NUM_LEVELS);
+        assert_eq!(
+            tracker.frame_pyramid().level(0).data(),
+            loaded.level(0).data()
+        );
+        // A buffer of the wrong size: refused, the frame copied, the tracker's kept.
+        let small = Pyramid::new(cam.width / 2, cam.height / 2, NUM_LEVELS);
+        let copy = tracker.swap_frame_pyramid(small);
+        assert_eq!(copy.level(0).data(), loaded.level(0).data());
+        assert_eq!(tracker.frame_pyramid().level(0).width(), cam.width);
+        assert_eq!(
+            tracker.frame_pyramid().level(0).data(),
+            loaded.level(0).data()
+        );
     }
 
     /// The photometric Jacobian w.r.t. the body increment, `J_ε Ad(T_kb)`, against numeric

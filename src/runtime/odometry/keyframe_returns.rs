@@ -268,6 +268,7 @@ fn go_back_to(
 mod tests {
     use super::*;
     use crate::mapping::semidense::MapPoint;
+    use crate::tracking::DepthPoint;
 
     /// A keyframe at the origin looking along +z at a textured plane 2 m away, with its map.
     fn stored(id: u32, t_world_cam: Isometry3<f64>) -> StoredKeyframe {

@@ -4,9 +4,11 @@
 //! tracked one, for tracking.
 
 use super::*;
-use crate::mapping::semidense::MapPoint;
-use crate::runtime::map_keyframe::{build, depth_points};
-use nalgebra::{Point3, Vector2};
+use crate::runtime::guessed_keyframe::{
+    GuessSettings, GuessedKeyframeJob, build_guessed_keyframe, depthless_points, median_inv_depth,
+};
+use crate::runtime::keyframe_builder::KeyframeBuilder;
+use crate::runtime::map_keyframe::build;
 
 impl Odometry {
     pub(super) fn next_seq(&mut self) -> u64 {
@@ -349,13 +351,14 @@ impl Odometry {
 
     /// `[bootstrap] fill_without_mapper`: the keyframe just started (`pending_kf`, at `t`, of
     /// `image`, the frame just tracked) is barely displaced from the one tracked — a turn on the
-    /// spot, where nothing new can be triangulated — so the tracking thread makes it at once
-    /// instead of waiting for the mapper: the tracked map's points moved into it (a rotation
-    /// keeps their depths meaningful), its other gradient pixels at their median inverse depth.
-    /// It is installed as a keyframe of guessed depths (`filled`), exactly as the mapper's first
-    /// map of a turn on the spot would be; the mapper's own map of it replaces it once it has
-    /// `fill_depthless_below_points` points.
-    pub(super) fn install_spot_turn_keyframe(&mut self, t: TimeNs, image: &Arc<Image<u8>>) {
+    /// spot, where nothing new can be triangulated — so it is made at once instead of waiting
+    /// for the mapper ([`super::super::guessed_keyframe`]): the tracked map's points moved into
+    /// it, its other gradient pixels at their median inverse depth. The builder thread makes it
+    /// between this frame and the next, which installs it before anything else
+    /// ([`Self::install_spot_turn_keyframe`]). It is installed as a keyframe of guessed depths
+    /// (`filled`), exactly as the mapper's first map of a turn on the spot would be; the mapper's
+    /// own map of it replaces it once it has `fill_depthless_below_points` points.
+    pub(super) fn start_spot_turn_keyframe(&mut self, t: TimeNs, image: &Arc<Image<u8>>) {
         let b = &self.cfg.bootstrap;
         if !b.fill_without_mapper || b.fill_depthless_below_points == 0 {
             return;
@@ -363,7 +366,7 @@ impl Odometry {
         let (Some(id), Some(old), Some(old_map)) = (
             self.pending_kf,
             self.tracker.keyframe(),
-            self.tracking_map.as_ref(),
+            self.tracking_map.clone(),
         ) else {
             return;
         };
@@ -371,68 +374,63 @@ impl Odometry {
         if !self.on_the_spot(&t_world_cam) {
             return;
         }
-        let points = moved_map_points(
-            old_map,
-            &(t_world_cam.inverse() * old.t_world_cam),
-            &self.rig.camera,
-            self.cfg.tracking.border_px.max(1.0),
-        );
-        let map = SemidenseMap {
-            t_world_cam: self.mapper_from_world * t_world_cam,
-            camera: self.rig.camera,
-            points,
+        let t_new_old = t_world_cam.inverse() * old.t_world_cam;
+        let pyramid = match (self.builder.is_some(), self.spare_pyramid.take()) {
+            (true, Some(spare)) => self.tracker.swap_frame_pyramid(spare),
+            _ => self.tracker.frame_pyramid().clone(),
         };
-        let Some(median_inv) = median_inv_depth(&map).or(self.last_median_inv_depth) else {
-            return;
-        };
-        let Some((kf, s)) = self.guessed_keyframe(id, t, image, t_world_cam, map, median_inv)
-        else {
-            return;
-        };
-        self.stats.spot_turn_keyframes += 1;
-        self.install_keyframe(kf, &s, true, true, false);
-    }
-
-    /// Keyframe `id` of the frame just tracked (at `t`, of `image`, camera at `t_world_cam`):
-    /// the points of `map` (the mapper's world) and its other gradient pixels at inverse depth
-    /// `median_inv`, with the snapshot to install it by — `None` below `min_keyframe_points`.
-    fn guessed_keyframe(
-        &mut self,
-        id: u32,
-        t: TimeNs,
-        image: &Arc<Image<u8>>,
-        t_world_cam: Isometry3<f64>,
-        map: SemidenseMap,
-        median_inv: f32,
-    ) -> Option<(Keyframe, MapSnapshot)> {
-        let pyr = self.tracker.frame_pyramid();
-        let fill = depthless_points(pyr, &map, median_inv, &self.cfg.tracking);
-        if map.points.len() + fill.len() < self.cfg.bootstrap.min_keyframe_points {
-            return None;
-        }
-        let mut pts = depth_points(&map);
-        pts.extend(fill);
-        let kf = Keyframe::from_rays(
+        let job = GuessedKeyframeJob {
             id,
             t,
-            pyr,
-            &self.rays,
+            image: image.clone(),
+            pyramid,
             t_world_cam,
-            &pts,
-            &self.cfg.tracking,
-        );
-        let s = MapSnapshot {
-            seq: 0,
-            keyframe_id: id,
-            keyframe_t: t,
-            keyframe_image: image.clone(),
-            keyframe_pyramid: Arc::new(pyr.clone()),
-            map: Arc::new(map),
-            views: 0,
-            forward_views: 0,
-            time_s: 0.0,
+            mapper_from_world: self.mapper_from_world,
+            moved_from: Some((old_map, t_new_old)),
+            fallback_median_inv_depth_m_inv: self.last_median_inv_depth,
         };
-        Some((kf, s))
+        match self.builder.as_mut() {
+            Some(builder) => {
+                // (One build at a time: the last one was installed at the start of this frame.)
+                let started = builder.start(job);
+                debug_assert!(started, "a spot-turn keyframe build already under way");
+            }
+            None => {
+                if let Some((kf, s)) = build_guessed_keyframe(job, &self.guess_settings()) {
+                    self.stats.spot_turn_keyframes += 1;
+                    self.install_keyframe(kf, &s, true, true, false);
+                }
+            }
+        }
+    }
+
+    /// Installs the turn on the spot's keyframe started at the end of the last frame
+    /// ([`Self::start_spot_turn_keyframe`]), waiting for the builder thread if it is not done:
+    /// the first thing of a frame. Its frame counts as one frame since the refresh, as when it
+    /// was installed in its own frame.
+    pub(super) fn install_spot_turn_keyframe(&mut self) {
+        let Some(done) = self.builder.as_mut().and_then(KeyframeBuilder::wait) else {
+            return;
+        };
+        self.spare_pyramid = Some(done.spare);
+        if let Some((kf, s)) = done.built
+            && self.pending_kf == Some(done.id)
+        {
+            self.stats.spot_turn_keyframes += 1;
+            self.install_keyframe(kf, &s, true, true, false);
+            self.frames_since_refresh = 1;
+        }
+    }
+
+    /// The settings of a keyframe of guessed depths built on this thread.
+    fn guess_settings(&self) -> GuessSettings {
+        GuessSettings {
+            camera: self.rig.camera,
+            rays: self.rays.clone(),
+            tracking: self.cfg.tracking.clone(),
+            border_px: self.cfg.tracking.border_px,
+            min_keyframe_points: self.cfg.bootstrap.min_keyframe_points,
+        }
     }
 
     /// `[bootstrap] reinit_guessed_depths`: the first map just started in flight from `frame`
@@ -446,19 +444,17 @@ impl Odometry {
         let (Some(id), Some(median_inv)) = (self.pending_kf, self.last_median_inv_depth) else {
             return;
         };
-        let map = SemidenseMap {
-            t_world_cam: self.mapper_from_world * frame.t_world_cam,
-            camera: self.rig.camera,
-            points: Vec::new(),
-        };
-        let Some((kf, s)) = self.guessed_keyframe(
+        let job = GuessedKeyframeJob {
             id,
-            frame.t,
-            &frame.image,
-            frame.t_world_cam,
-            map,
-            median_inv,
-        ) else {
+            t: frame.t,
+            image: frame.image.clone(),
+            pyramid: self.tracker.frame_pyramid().clone(),
+            t_world_cam: frame.t_world_cam,
+            mapper_from_world: self.mapper_from_world,
+            moved_from: None,
+            fallback_median_inv_depth_m_inv: Some(median_inv),
+        };
+        let Some((kf, s)) = build_guessed_keyframe(job, &self.guess_settings()) else {
             return;
         };
         let x = *self.tracker.state();
@@ -603,99 +599,9 @@ fn new_keyframe_ready(
         || (realtime && views == AdjustmentViews::Enough)
 }
 
-/// The keyframe's level-0 gradient pixels (as the tracker selects them) in cells of its image
-/// that `map` has no point in, at the map's median inverse depth.
-fn depthless_points(
-    pyr: &Pyramid,
-    map: &SemidenseMap,
-    median_inv: f32,
-    cfg: &TrackerConfig,
-) -> Vec<DepthPoint> {
-    let cell = (2 * cfg.select_cell_px).max(1);
-    let (w, h) = (pyr.level(0).width(), pyr.level(0).height());
-    let (cw, ch) = (w.div_ceil(cell), h.div_ceil(cell));
-    let mut occupied = vec![false; cw * ch];
-    for p in &map.points {
-        let (cx, cy) = (
-            p.u_px.max(0.0) as usize / cell,
-            p.v_px.max(0.0) as usize / cell,
-        );
-        if cx < cw && cy < ch {
-            occupied[cy * cw + cx] = true;
-        }
-    }
-    select_gradient_pixels(pyr, cfg)
-        .into_iter()
-        .filter(|&(x, y)| !occupied[(y as usize / cell) * cw + x as usize / cell])
-        .map(|(x, y)| DepthPoint {
-            u_px: x as f32,
-            v_px: y as f32,
-            inv_depth_m_inv: median_inv,
-        })
-        .collect()
-}
-
-/// The points of `map` (a keyframe's) as seen from a camera at `t_new_old` (the keyframe's
-/// camera in the new one), in the new camera's pixels: each moved to its nearest integer pixel at
-/// least `border_px` inside the image, the nearest point where several land on one pixel; inverse
-/// depth and its standard deviation scaled by the change of depth.
-fn moved_map_points(
-    map: &SemidenseMap,
-    t_new_old: &Isometry3<f64>,
-    camera: &CameraModel,
-    border_px: f64,
-) -> Vec<MapPoint> {
-    let mut moved: Vec<(usize, MapPoint)> = Vec::with_capacity(map.points.len());
-    for p in &map.points {
-        if p.inv_depth_m_inv.is_nan() || p.inv_depth_m_inv <= 0.0 {
-            continue;
-        }
-        let Some(ray) = camera.unproject(&Vector2::new(p.u_px as f64, p.v_px as f64)) else {
-            continue;
-        };
-        let x_new = t_new_old * Point3::from(ray / p.inv_depth_m_inv as f64);
-        let Some(uv) = camera.project(&x_new.coords) else {
-            continue;
-        };
-        let uv = uv.map(f64::round);
-        if !camera.in_image(&uv, border_px) {
-            continue;
-        }
-        let inv = (1.0 / x_new.z) as f32;
-        moved.push((
-            uv.y as usize * camera.width + uv.x as usize,
-            MapPoint {
-                u_px: uv.x as f32,
-                v_px: uv.y as f32,
-                inv_depth_m_inv: inv,
-                inv_depth_std_m_inv: p.inv_depth_std_m_inv * inv / p.inv_depth_m_inv,
-                num_views: p.num_views,
-            },
-        ));
-    }
-    // Row-major pixel order, the nearest point first on each pixel; then one per pixel.
-    moved.sort_by(|a, b| {
-        a.0.cmp(&b.0)
-            .then(b.1.inv_depth_m_inv.total_cmp(&a.1.inv_depth_m_inv))
-    });
-    moved.dedup_by_key(|m| m.0);
-    moved.into_iter().map(|(_, p)| p).collect()
-}
-
-/// Median inverse depth of a map's points, 1/m.
-fn median_inv_depth(map: &SemidenseMap) -> Option<f32> {
-    let mut inv: Vec<f32> = map.points.iter().map(|p| p.inv_depth_m_inv).collect();
-    if inv.is_empty() {
-        return None;
-    }
-    let m = inv.len() / 2;
-    Some(*inv.select_nth_unstable_by(m, f32::total_cmp).1)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use approx::assert_relative_eq;
 
     #[test]
     fn a_new_keyframe_waits_for_forward_views_offline_and_for_its_adjustment_views_in_real_time() {
@@ -776,118 +682,5 @@ mod tests {
         }
         // With adjustments at once (offline by default) the first sign of slipping installs.
         assert!(new_keyframe_ready(&b, (false, false), slipping, 0, Awaited));
-    }
-
-    /// A turn on the spot's keyframe made by the tracker: the tracked map's points moved into
-    /// it must land where the camera sees them, at their depth in the new camera, one per pixel
-    /// (the nearest), none outside the image.
-    #[test]
-    fn map_points_moved_into_a_turned_camera_land_where_it_sees_them() {
-        let cam = CameraModel::euroc_cam0();
-        let point = |u: f32, v: f32, inv: f32| MapPoint {
-            u_px: u,
-            v_px: v,
-            inv_depth_m_inv: inv,
-            inv_depth_std_m_inv: 0.02 * inv,
-            num_views: 4,
-        };
-        // A grid over the image at 2 m, a second point at 1 m on one of its pixels and one at
-        // the left edge, which the turn takes out of the image.
-        let mut points: Vec<MapPoint> = (20..460)
-            .step_by(40)
-            .flat_map(|v| (100..700).step_by(40).map(move |u| (u, v)))
-            .map(|(u, v)| point(u as f32, v as f32, 0.5))
-            .collect();
-        let grid = points.len();
-        points.push(point(300.0, 220.0, 1.0));
-        points.push(point(8.0, 240.0, 0.5));
-        let map = SemidenseMap {
-            t_world_cam: Isometry3::identity(),
-            camera: cam,
-            points,
-        };
-        // The camera turned by 0.15 rad about its y axis (to the right: points move left), on
-        // the spot: the old camera in the new one.
-        let t_new_old = Isometry3::new(Vector3::zeros(), Vector3::y() * -0.15);
-        let moved = moved_map_points(&map, &t_new_old, &cam, 2.0);
-        // Every grid point stays in view (the grid starts 100 px inside), the edge point leaves,
-        // and of the two on one pixel only one is kept.
-        assert_eq!(moved.len(), grid, "{}", moved.len());
-        let mut pixels: Vec<_> = moved
-            .iter()
-            .map(|p| (p.u_px as i32, p.v_px as i32))
-            .collect();
-        pixels.sort_unstable();
-        pixels.dedup();
-        assert_eq!(pixels.len(), moved.len(), "two points on one pixel");
-        for p in &map.points[..grid] {
-            let ray = cam
-                .unproject(&Vector2::new(p.u_px as f64, p.v_px as f64))
-                .unwrap();
-            // Of the two on (300, 220), the nearer one (1 m).
-            let inv = if (p.u_px, p.v_px) == (300.0, 220.0) {
-                1.0
-            } else {
-                0.5
-            };
-            let x = t_new_old * Point3::from(ray / inv);
-            let uv = cam.project(&x.coords).unwrap();
-            assert!(uv.x < p.u_px as f64 - 50.0, "the turn moves points left");
-            let m = moved
-                .iter()
-                .find(|m| m.u_px == uv.x.round() as f32 && m.v_px == uv.y.round() as f32)
-                .expect("grid point moved");
-            assert_relative_eq!(m.inv_depth_m_inv, (1.0 / x.z) as f32, max_relative = 1e-5);
-            assert_relative_eq!(
-                m.inv_depth_std_m_inv / m.inv_depth_m_inv,
-                0.02,
-                max_relative = 1e-4
-            );
-            assert_eq!(m.num_views, 4);
-        }
-    }
-
-    #[test]
-    fn depthless_pixels_fill_only_cells_without_map_points() {
-        let cam = CameraModel::euroc_cam0();
-        let pyr = textured_pyramid(&cam);
-        let cfg = TrackerConfig::default();
-        // Map points over the left half of the image.
-        let points = (0..cam.height as u32)
-            .step_by(4)
-            .flat_map(|v| {
-                (0..cam.width as u32 / 2).step_by(4).map(move |u| MapPoint {
-                    u_px: u as f32,
-                    v_px: v as f32,
-                    inv_depth_m_inv: 0.5,
-                    inv_depth_std_m_inv: 0.01,
-                    num_views: 3,
-                })
-            })
-            .collect();
-        let map = SemidenseMap {
-            t_world_cam: Isometry3::identity(),
-            camera: cam,
-            points,
-        };
-        assert_eq!(median_inv_depth(&map), Some(0.5));
-        let all = select_gradient_pixels(&pyr, &cfg).len();
-        let fill = depthless_points(&pyr, &map, 0.25, &cfg);
-        assert!(
-            fill.len() > all / 3 && fill.len() < all * 2 / 3,
-            "{} of {all}",
-            fill.len()
-        );
-        let cell = 2 * cfg.select_cell_px;
-        for p in &fill {
-            assert!(p.u_px as usize >= (cam.width / 2).div_ceil(cell) * cell - cell);
-            assert_eq!(p.inv_depth_m_inv, 0.25);
-        }
-        let empty = SemidenseMap {
-            points: Vec::new(),
-            ..map
-        };
-        assert_eq!(median_inv_depth(&empty), None);
-        assert_eq!(depthless_points(&pyr, &empty, 0.25, &cfg).len(), all);
     }
 }

@@ -21,10 +21,11 @@
 //!   a new keyframe (seeded by propagating the map of the keyframe tracked and by the last few
 //!   frames). Frames that start nothing refine the mapper's keyframe's depths. In a turn on the
 //!   spot nothing can be triangulated and each propagated map keeps only the part of the view
-//!   that is leaving: a keyframe barely displaced from the one tracked is made by this thread at
-//!   once (`fill_without_mapper`: the tracked map's points moved into it, its other gradient
-//!   pixels at the median depth — any depth serves a rotation), and the mapper's map of it
-//!   replaces it once it is full.
+//!   that is leaving: a keyframe barely displaced from the one tracked is made at once, without
+//!   the mapper (`fill_without_mapper`: the tracked map's points moved into it, its other gradient
+//!   pixels at the median depth — any depth serves a rotation; built by the keyframe builder
+//!   thread between this frame and the next, and installed first thing in the next), and the
+//!   mapper's map of it replaces it once it is full.
 //! * [`Phase::Lost`]: several consecutive frames had too few photometric inliers (covered lens,
 //!   dark, a keyframe left behind). Poses are IMU-only; a short loss of the image resumes on the
 //!   keyframe lost (`resume_max_s`), a loss by motion relocalises on a stored keyframe covering
@@ -49,8 +50,13 @@
 //! keyframe window's part in it; `mapper_link.rs` the jobs and snapshots of the mapping thread
 //! and the decision to install a keyframe; `refinement_jobs.rs` the take-off refinement and the
 //! keyframe adjustments on the refinement thread; `keyframe_returns.rs` the returns to stored
-//! keyframes.
+//! keyframes. Keyframes of guessed depths are built in [`super::guessed_keyframe`], a turn on the
+//! spot's on the thread of [`super::keyframe_builder`].
 
+use super::guessed_keyframe::GuessSettings;
+#[cfg(test)]
+use super::guessed_keyframe::textured_pyramid;
+use super::keyframe_builder::KeyframeBuilder;
 use super::keyframe_bundle::{
     KeyframeBundleConfig, KeyframeRecord, PreviousHost, carry_correction,
 };
@@ -79,8 +85,7 @@ use crate::smoother::photometric_bundle::BundleConfig;
 use crate::smoother::{KeyframeWindow, RelativePose, WindowConfig};
 use crate::time::TimeNs;
 use crate::tracking::{
-    DepthPoint, FlagReason, Keyframe, TrackResult, Tracker, TrackerConfig, pose_of,
-    select_gradient_pixels,
+    FlagReason, Keyframe, TrackResult, Tracker, TrackerConfig, pose_of, select_gradient_pixels,
 };
 use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -486,17 +491,6 @@ pub struct OdometryConfig {
     pub mapping_true_view_poses: Option<Arc<TrueCameraPoses>>,
 }
 
-/// A sinusoidal texture over the whole image, for tests that need gradient pixels everywhere.
-#[cfg(test)]
-fn textured_pyramid(cam: &CameraModel) -> Pyramid {
-    let img = Image::from_fn(cam.width, cam.height, |x, y| {
-        128.0f32 + 60.0 * ((x as f32) * 0.3).sin() * ((y as f32) * 0.25).cos()
-    });
-    let mut pyr = Pyramid::new(cam.width, cam.height, crate::tracking::NUM_LEVELS);
-    pyr.fill_from_f32(&img);
-    pyr
-}
-
 /// Counters for the report.
 #[derive(Clone, Debug, Default)]
 pub struct OdometryStats {
@@ -690,6 +684,12 @@ pub struct Odometry {
     times: FrameTimes,
     /// The rays of the camera's pixels (the keyframes' points back-projected by lookup).
     rays: Arc<PixelRays>,
+    /// The thread that builds a turn on the spot's keyframe between two frames (`[bootstrap]
+    /// fill_without_mapper`; `None` when that is off).
+    builder: Option<KeyframeBuilder>,
+    /// The buffer the tracker loads the frame after the next spot-turn keyframe into (the
+    /// builder's, handed back with each build).
+    spare_pyramid: Option<Pyramid>,
     /// Frames tracked while a keyframe adjustment is under way (the newest
     /// [`Self::catch_up_limit`]): tracked again once it is back.
     catch_up: Vec<(TimeNs, Arc<Image<u8>>)>,
@@ -860,9 +860,28 @@ impl Odometry {
                     nice_increment: cfg.bootstrap.refinement_nice,
                 })
             });
+        let b = &cfg.bootstrap;
+        let builder = (b.fill_without_mapper && b.fill_depthless_below_points > 0).then(|| {
+            KeyframeBuilder::spawn(GuessSettings {
+                camera: rig.camera,
+                rays: rays.clone(),
+                tracking: cfg.tracking.clone(),
+                border_px: cfg.tracking.border_px,
+                min_keyframe_points: b.min_keyframe_points,
+            })
+        });
+        // Written once here, so that the frames loaded into it later do not map its pages.
+        let spare_pyramid = builder.as_ref().map(|_| {
+            Pyramid::from_u8(
+                &Image::new(rig.camera.width, rig.camera.height),
+                crate::tracking::NUM_LEVELS,
+            )
+        });
         Odometry {
             tracker,
             detector,
+            builder,
+            spare_pyramid,
             mapping: Some(mapping),
             refiner,
             refining: None,
@@ -1002,6 +1021,9 @@ impl Odometry {
     }
 
     fn process_frame(&mut self, t: TimeNs, mut image: Image<u8>) -> OdometryFrame {
+        let mark = std::time::Instant::now();
+        self.install_spot_turn_keyframe();
+        let spot_turn_s = mark.elapsed().as_secs_f64();
         if let Some(gain) = &self.vignette_gain
             && gain.len() == image.width() * image.height()
         {
@@ -1012,7 +1034,7 @@ impl Odometry {
         self.send_deferred_jobs();
         let mark = std::time::Instant::now();
         self.collect_snapshots();
-        self.times.maps_s = mark.elapsed().as_secs_f64();
+        self.times.maps_s = spot_turn_s + mark.elapsed().as_secs_f64();
         let mark = std::time::Instant::now();
         self.collect_refinement();
         self.times.adjustments_s = mark.elapsed().as_secs_f64();
@@ -1242,7 +1264,7 @@ impl Odometry {
                     let history: Vec<MapFrame> = self.history.iter().cloned().collect();
                     let propagate = self.cfg.bootstrap.propagate_maps;
                     self.start_keyframe(frame, history, propagate);
-                    self.install_spot_turn_keyframe(t, &image);
+                    self.start_spot_turn_keyframe(t, &image);
                 } else if result.flag.is_none() && (!self.reusing || self.pending_kf.is_some()) {
                     // (While a stored keyframe is tracked, the mapper's keyframe is the one left
                     // behind until a new one is started: frames corrected against the stored
