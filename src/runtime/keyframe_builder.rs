@@ -58,18 +58,15 @@ impl KeyframeBuilder {
         }
     }
 
-    /// Starts building `job`; `false` (the job dropped) if a build is under way or the thread is
-    /// gone.
-    pub fn start(&mut self, job: GuessedKeyframeJob) -> bool {
-        if self.outstanding.is_some() {
-            return false;
-        }
+    /// Starts building `job`; gives it back if a build is under way or the thread is gone.
+    pub fn start(&mut self, job: GuessedKeyframeJob) -> Result<(), Box<GuessedKeyframeJob>> {
+        let Some(jobs) = self.jobs.as_ref().filter(|_| self.outstanding.is_none()) else {
+            return Err(Box::new(job));
+        };
         let id = job.id;
-        let sent = self.jobs.as_ref().is_some_and(|j| j.try_send(job).is_ok());
-        if sent {
-            self.outstanding = Some(id);
-        }
-        sent
+        jobs.try_send(job).map_err(|e| Box::new(e.into_inner()))?;
+        self.outstanding = Some(id);
+        Ok(())
     }
 
     /// Id of the build under way, if any.
@@ -134,9 +131,12 @@ mod tests {
             build_guessed_keyframe(turned_job(&cam, 7), &s).expect("enough points");
         let mut b = KeyframeBuilder::spawn(s);
         assert!(b.wait().is_none(), "nothing under way");
-        assert!(b.start(turned_job(&cam, 7)));
+        assert!(b.start(turned_job(&cam, 7)).is_ok());
         assert_eq!(b.outstanding(), Some(7));
-        assert!(!b.start(turned_job(&cam, 8)), "one build at a time");
+        let refused = b
+            .start(turned_job(&cam, 8))
+            .expect_err("one build at a time");
+        assert_eq!(refused.id, 8, "the job refused is given back");
         let done = b.wait().expect("built");
         assert_eq!(b.outstanding(), None);
         assert_eq!(done.id, 7);
@@ -161,7 +161,7 @@ mod tests {
             (cam.width, cam.height)
         );
         assert!(
-            b.start(turned_job(&cam, 9)),
+            b.start(turned_job(&cam, 9)).is_ok(),
             "the next build once this one is taken"
         );
     }

@@ -389,18 +389,17 @@ impl Odometry {
             moved_from: Some((old_map, t_new_old)),
             fallback_median_inv_depth_m_inv: self.last_median_inv_depth,
         };
-        match self.builder.as_mut() {
-            Some(builder) => {
-                // (One build at a time: the last one was installed at the start of this frame.)
-                let started = builder.start(job);
-                debug_assert!(started, "a spot-turn keyframe build already under way");
-            }
-            None => {
-                if let Some((kf, s)) = build_guessed_keyframe(job, &self.guess_settings()) {
-                    self.stats.spot_turn_keyframes += 1;
-                    self.install_keyframe(kf, &s, true, true, false);
-                }
-            }
+        // (One build at a time: the last one was installed at the start of this frame. Were the
+        // builder refusing it — gone — it is built here.)
+        let refused = match self.builder.as_mut() {
+            Some(builder) => builder.start(job).err().map(|j| *j),
+            None => Some(job),
+        };
+        if let Some(job) = refused
+            && let Some((kf, s)) = build_guessed_keyframe(job, &self.guess_settings())
+        {
+            self.stats.spot_turn_keyframes += 1;
+            self.install_keyframe(kf, &s, true, true, false);
         }
     }
 
@@ -424,13 +423,7 @@ impl Odometry {
 
     /// The settings of a keyframe of guessed depths built on this thread.
     fn guess_settings(&self) -> GuessSettings {
-        GuessSettings {
-            camera: self.rig.camera,
-            rays: self.rays.clone(),
-            tracking: self.cfg.tracking.clone(),
-            border_px: self.cfg.tracking.border_px,
-            min_keyframe_points: self.cfg.bootstrap.min_keyframe_points,
-        }
+        guess_settings(&self.cfg, self.rig.camera, &self.rays)
     }
 
     /// `[bootstrap] reinit_guessed_depths`: the first map just started in flight from `frame`
@@ -550,6 +543,21 @@ impl Odometry {
                 self.stats.tracking_since = self.last_t;
             }
         }
+    }
+}
+
+/// The settings of keyframes of guessed depths (built by the builder thread or inline).
+pub(super) fn guess_settings(
+    cfg: &OdometryConfig,
+    camera: CameraModel,
+    rays: &Arc<PixelRays>,
+) -> GuessSettings {
+    GuessSettings {
+        camera,
+        rays: rays.clone(),
+        tracking: cfg.tracking.clone(),
+        border_px: cfg.tracking.border_px,
+        min_keyframe_points: cfg.bootstrap.min_keyframe_points,
     }
 }
 

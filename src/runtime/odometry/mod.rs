@@ -53,7 +53,6 @@
 //! keyframes. Keyframes of guessed depths are built in [`super::guessed_keyframe`], a turn on the
 //! spot's on the thread of [`super::keyframe_builder`].
 
-use super::guessed_keyframe::GuessSettings;
 #[cfg(test)]
 use super::guessed_keyframe::textured_pyramid;
 use super::keyframe_builder::KeyframeBuilder;
@@ -438,7 +437,8 @@ pub struct FrameTimes {
     /// window alone.)
     pub total_s: f64,
     /// Taking in the mapper's snapshots: maps turned into the tracker's keyframes and installed
-    /// (offline with the wait for a map due at this frame).
+    /// (offline with the wait for a map due at this frame); and installing a turn on the spot's
+    /// keyframe built since the last frame ([`super::keyframe_builder`], with any wait for it).
     pub maps_s: f64,
     /// Taking in the refinement thread's outcomes: adjusted keyframes installed, the frames
     /// since tracked again or carried by the correction (offline with the wait for an outcome due).
@@ -861,15 +861,8 @@ impl Odometry {
                 })
             });
         let b = &cfg.bootstrap;
-        let builder = (b.fill_without_mapper && b.fill_depthless_below_points > 0).then(|| {
-            KeyframeBuilder::spawn(GuessSettings {
-                camera: rig.camera,
-                rays: rays.clone(),
-                tracking: cfg.tracking.clone(),
-                border_px: cfg.tracking.border_px,
-                min_keyframe_points: b.min_keyframe_points,
-            })
-        });
+        let builder = (b.fill_without_mapper && b.fill_depthless_below_points > 0)
+            .then(|| KeyframeBuilder::spawn(mapper_link::guess_settings(&cfg, rig.camera, &rays)));
         // Written once here, so that the frames loaded into it later do not map its pages.
         let spare_pyramid = builder.as_ref().map(|_| {
             Pyramid::from_u8(
