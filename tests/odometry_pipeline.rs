@@ -776,6 +776,24 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
             .all(|f| f.cpu_s.is_some_and(|c| c <= f.total_s + 1e-4))
     );
     assert!(out.frame_times.iter().any(|f| f.window_s > 0.0));
+    // `frames.csv` carries each frame's split: its header names the columns and every row has
+    // them, the whole frame's as measured.
+    let csv = vidslam::runtime::report::frames_csv(&out);
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (frame_ms, cpu_ms) = (col("frame_ms"), col("cpu_ms"));
+    for name in ["maps_ms", "adjustments_ms", "window_ms", "other_ms"] {
+        col(name);
+    }
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), out.frames.len());
+    for (row, f) in rows.iter().zip(&out.frame_times) {
+        assert_eq!(row.len(), header.len());
+        let ms: f64 = row[frame_ms].parse().unwrap();
+        assert!((ms - f.total_s * 1e3).abs() <= 5e-4, "{ms} {}", f.total_s);
+        assert_eq!(row[cpu_ms].is_empty(), f.cpu_s.is_none());
+    }
     assert!(out.frames.iter().all(|r| {
         let p = pose_of(&r.state);
         p.translation.vector.iter().all(|v| v.is_finite())

@@ -1080,19 +1080,26 @@ pub fn trajectory(out: &ReplayOutput) -> Trajectory {
 
 /// Per-frame diagnostics as CSV (`frames.csv`): time, flag, iterations per level, inlier ratio,
 /// overlap, residual RMS, IMU χ², keyframe, tracking time, position, velocity, biases,
-/// brightness and whether vision was down-weighted (`[tracking] vision_downweight_chi2`).
+/// brightness, whether vision was down-weighted (`[tracking] vision_downweight_chi2`) and the
+/// tracking thread's whole frame split as in [`FrameTimes`] (ms; `cpu_ms` empty where the
+/// platform cannot tell).
 pub fn frames_csv(out: &ReplayOutput) -> String {
     let mut s = String::from(
         "t_ns,phase,flag,iters_l0,iters_l1,iters_l2,iters_l3,inlier_ratio,overlap,residual_rms_gray,\
          imu_chi2,keyframe_id,new_keyframe,tracking_ms,px_m,py_m,pz_m,vx_m_s,vy_m_s,vz_m_s,\
-         bgx_rad_s,bgy_rad_s,bgz_rad_s,bax_m_s2,bay_m_s2,baz_m_s2,log_gain,offset_gray,downweighted\n",
+         bgx_rad_s,bgy_rad_s,bgz_rad_s,bax_m_s2,bay_m_s2,baz_m_s2,log_gain,offset_gray,downweighted,\
+         frame_ms,maps_ms,adjustments_ms,window_ms,other_ms,cpu_ms\n",
     );
-    for (r, ph) in out.frames.iter().zip(&out.phases) {
+    for (i, (r, ph)) in out.frames.iter().zip(&out.phases).enumerate() {
         let n = &r.state.nav;
         let b = &r.state.bias;
+        let ft = out.frame_times.get(i).copied().unwrap_or_default();
+        let cpu_ms = ft
+            .cpu_s
+            .map_or(String::new(), |c| format!("{:.3}", c * 1e3));
         s.push_str(&format!(
             "{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{:.3},{},{},{:.3},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},\
-             {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3},{}\n",
+             {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3},{},{:.3},{:.3},{:.3},{:.3},{:.3},{}\n",
             r.t.0,
             ph.as_str(),
             r.flag.map_or("", |f| f.as_str()),
@@ -1122,6 +1129,12 @@ pub fn frames_csv(out: &ReplayOutput) -> String {
             r.log_gain,
             r.offset_gray,
             u8::from(r.downweighted),
+            ft.total_s * 1e3,
+            ft.maps_s * 1e3,
+            ft.adjustments_s * 1e3,
+            ft.window_s * 1e3,
+            ft.other_s() * 1e3,
+            cpu_ms,
         ));
     }
     s
