@@ -776,6 +776,19 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
             .all(|f| f.cpu_s.is_some_and(|c| c <= f.total_s + 1e-4))
     );
     assert!(out.frame_times.iter().any(|f| f.window_s > 0.0));
+    // The tracking thread ran at its real-time priority, or the replay says why not (the
+    // default asks for one).
+    match out.tracking_fifo.as_ref().expect("real time reports it") {
+        Ok(p) => assert_eq!(*p, opts.bootstrap.tracking_fifo_priority),
+        Err(why) => assert!(why.contains("not permitted"), "{why}"),
+    }
+    // …and gave it back when the replay ended.
+    #[cfg(target_os = "linux")]
+    assert_eq!(
+        // SAFETY: sched_getscheduler(0) reads the calling thread's policy.
+        unsafe { libc::sched_getscheduler(0) },
+        libc::SCHED_OTHER
+    );
     // `frames.csv` carries each frame's split: its header names the columns and every row has
     // them, the whole frame's as measured.
     let csv = vidslam::runtime::report::frames_csv(&out);

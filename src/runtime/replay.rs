@@ -13,6 +13,7 @@ use super::odometry::{
     BootstrapConfig, FrameTimes, Odometry, OdometryConfig, OdometryStats, Phase, Rig,
 };
 use super::scale_observer::ScaleObserverConfig;
+use super::thread_priority::RealtimeGuard;
 use super::true_view_poses::TrueCameraPoses;
 use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_imu_csv};
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
@@ -163,6 +164,10 @@ pub struct ReplayOutput {
     pub frames_waiting: usize,
     /// What the mapping thread built (empty with ground-truth depth).
     pub mapping: MappingOutput,
+    /// Real time: the tracking thread's `SCHED_FIFO` priority (`[bootstrap]
+    /// tracking_fifo_priority`), or why it ran without one (`Err`: not permitted here, or off);
+    /// `None` offline.
+    pub tracking_fifo: Option<Result<i32, String>>,
     /// Frames of the dataset inside the replayed span.
     pub frames_in: usize,
     /// The odometry's counters and timings (with ground-truth depth only `keyframes`).
@@ -323,6 +328,16 @@ fn replay_full(
         frames_in: span.len(),
         ..Default::default()
     };
+    // Real time: the frames at a real-time priority where permitted, taken after the odometry
+    // started its threads and given back when the replay ends (a thread started meanwhile does
+    // not inherit it).
+    let fifo_priority = opts.bootstrap.tracking_fifo_priority;
+    let fifo = (opts.realtime && fifo_priority > 0).then(|| RealtimeGuard::fifo(fifo_priority));
+    out.tracking_fifo = opts.realtime.then(|| match &fifo {
+        Some(Ok(_)) => Ok(fifo_priority),
+        Some(Err(e)) => Err(format!("SCHED_FIFO {fifo_priority} not permitted: {e}")),
+        None => Err("off ([bootstrap] tracking_fifo_priority = 0)".to_string()),
+    });
     let mut next_imu = 0usize;
     let wall0 = std::time::Instant::now();
     for (k, rec) in span.iter().enumerate() {
@@ -360,6 +375,7 @@ fn replay_full(
         }
         progress(k + 1, span.len());
     }
+    drop(fifo);
     let (stats, mapping) = odo.finish();
     out.odometry = stats;
     out.mapping = mapping;

@@ -139,6 +139,11 @@ pub struct ReplayReport {
     /// Replayed paced at the camera's timestamps (`--realtime`): the background results arrived
     /// as late as this machine made them, so the figures are one sample of a timing-dependent run.
     pub realtime: bool,
+    /// Real time: the tracking thread's `SCHED_FIFO` priority, 0 if it ran under the default
+    /// policy (`[bootstrap] tracking_fifo_priority` off, or not permitted: `tracking_fifo_note`).
+    pub tracking_fifo_priority: i32,
+    /// Why the tracking thread ran without a real-time priority, if it did ("" otherwise).
+    pub tracking_fifo_note: String,
     /// Frames read before the first valid pose (rest not yet detected).
     pub frames_waiting: usize,
     /// Frames per odometry phase (static, initializing, tracking, lost).
@@ -450,6 +455,14 @@ impl ReplayReport {
             depth: depth.to_string(),
             mapping_poses: "tracked".to_string(),
             realtime,
+            tracking_fifo_priority: match &out.tracking_fifo {
+                Some(Ok(p)) => *p,
+                _ => 0,
+            },
+            tracking_fifo_note: match &out.tracking_fifo {
+                Some(Err(e)) => e.clone(),
+                _ => String::new(),
+            },
             frames_waiting: out.frames_waiting,
             phases,
             rest_gyro_density_rad_s_sqrt_hz: rest.map(|d| d.gyro_rad_s_sqrt_hz),
@@ -738,10 +751,10 @@ impl ReplayReport {
                 self.frame_ms_p50,
                 self.frame_ms_p99,
                 self.frame_ms_max,
-                if self.realtime {
-                    ""
-                } else {
-                    "; offline with the waits for the mapper"
+                match (self.realtime, self.tracking_fifo_priority) {
+                    (false, _) => "; offline with the waits for the mapper".to_string(),
+                    (true, 0) => format!("; {}", self.tracking_fifo_note),
+                    (true, p) => format!("; under SCHED_FIFO {p}"),
                 }
             ),
         );

@@ -1,12 +1,19 @@
-//! Scheduling priority of the background threads (mapping, refinement).
+//! Scheduling priority of the odometry's threads.
 //!
 //! The tracking thread must finish every frame within its budget; the mapper and the refinement
 //! may take as long as they need, at the price of latency. On two cores the three compete, and
 //! under the default scheduler the tracker's p99 grows by the time slices the others take. A
 //! background thread therefore lowers its own priority (raises its nice value) when it starts:
-//! the kernel then gives the tracker the core whenever it is runnable. Raising one's own nice value
-//! needs no privilege. Linux only (elsewhere a no-op); the result never depends on it, only the
-//! timing.
+//! the kernel then gives the tracker the core more often whenever it is runnable. Raising one's
+//! own nice value needs no privilege. But a nice value only weighs the share: the refinement's
+//! pool at nice 2 still held the tracking thread off its core for 1.5–3.3 ms of its slowest
+//! frames (`frame_tail.cpu_ms` against `total_ms`). In real time the tracking thread therefore
+//! also takes a fixed real-time priority ([`RealtimeGuard::fifo`], `SCHED_FIFO`) where the process
+//! may (root, `CAP_SYS_NICE` or an `RLIMIT_RTPRIO`, as a systemd unit's
+//! `AmbientCapabilities=CAP_SYS_NICE` or `LimitRTPRIO=` grants): it then runs whenever it is
+//! runnable, ahead of every ordinary thread. Threads it starts do not inherit it
+//! (`SCHED_RESET_ON_FORK`). Linux only (elsewhere a no-op); the result never depends on it, only
+//! the timing.
 
 /// Raises the calling thread's nice value by `increment` (0: nothing done). Returns whether the
 /// priority was changed.
@@ -50,6 +57,60 @@ fn lowered_pool(name: &'static str, increment: i32) -> Option<rayon::ThreadPool>
         })
         .build()
         .ok()
+}
+
+/// The calling thread at a real-time priority (`SCHED_FIFO`) until dropped, when its previous
+/// policy and priority are restored.
+pub struct RealtimeGuard {
+    #[cfg(target_os = "linux")]
+    previous: (libc::c_int, libc::sched_param),
+}
+
+impl RealtimeGuard {
+    /// Puts the calling thread under `SCHED_FIFO` at `priority` (1–99), with threads it starts
+    /// from now on under the default policy (`SCHED_RESET_ON_FORK`). The error (no privilege:
+    /// `EPERM`; a priority out of range: `EINVAL`; not Linux) leaves the thread as it was.
+    pub fn fifo(priority: i32) -> std::io::Result<Self> {
+        fifo(priority)
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn fifo(priority: i32) -> std::io::Result<RealtimeGuard> {
+    // SAFETY: sched_getscheduler/sched_getparam/sched_setscheduler with pid 0 address the calling
+    // thread and read or write only the `sched_param` passed, which lives on this stack.
+    unsafe {
+        let policy = libc::sched_getscheduler(0);
+        let mut param: libc::sched_param = std::mem::zeroed();
+        if policy == -1 || libc::sched_getparam(0, &mut param) != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        let fifo = libc::sched_param {
+            sched_priority: priority,
+        };
+        if libc::sched_setscheduler(0, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, &fifo) != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        Ok(RealtimeGuard {
+            previous: (policy, param),
+        })
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn fifo(_priority: i32) -> std::io::Result<RealtimeGuard> {
+    Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
+}
+
+impl Drop for RealtimeGuard {
+    fn drop(&mut self) {
+        #[cfg(target_os = "linux")]
+        // SAFETY: as in `fifo`; the policy and parameters are the thread's own from before.
+        unsafe {
+            let (policy, param) = self.previous;
+            libc::sched_setscheduler(0, policy, &param);
+        }
+    }
 }
 
 #[cfg(target_os = "linux")]
@@ -138,6 +199,41 @@ mod tests {
             .unwrap();
             assert_eq!(inner, (with_pool, (outer + 3).min(19)), "pool {with_pool}");
         }
+    }
+
+    /// Where the process may (root here), the thread runs under `SCHED_FIFO` while the guard
+    /// lives, a thread it starts meanwhile does not, and its policy is restored after; where it
+    /// may not, the error leaves it as it was. A priority out of range is refused either way.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_realtime_guard_holds_the_thread_at_fifo_and_restores_it() {
+        std::thread::spawn(|| {
+            // SAFETY: sched_getscheduler(0) reads the calling thread's policy.
+            let policy = || unsafe { libc::sched_getscheduler(0) } & !libc::SCHED_RESET_ON_FORK;
+            let before = policy();
+            assert_eq!(before, libc::SCHED_OTHER);
+            assert!(RealtimeGuard::fifo(100).is_err(), "out of range");
+            assert_eq!(policy(), before);
+            match RealtimeGuard::fifo(10) {
+                Ok(guard) => {
+                    assert_eq!(policy(), libc::SCHED_FIFO);
+                    let child = std::thread::spawn(policy).join().unwrap();
+                    assert_eq!(
+                        child,
+                        libc::SCHED_OTHER,
+                        "started threads do not inherit it"
+                    );
+                    drop(guard);
+                    assert_eq!(policy(), before);
+                }
+                Err(e) => {
+                    assert_eq!(e.raw_os_error(), Some(libc::EPERM), "{e}");
+                    assert_eq!(policy(), before);
+                }
+            }
+        })
+        .join()
+        .unwrap();
     }
 
     #[test]

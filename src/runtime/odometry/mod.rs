@@ -197,6 +197,11 @@ pub struct BootstrapConfig {
     /// than the mapper's, since the keyframe it adjusts is waited for while the mapper's views
     /// can be skipped.
     pub refinement_nice: i32,
+    /// Real time: the tracking thread runs under `SCHED_FIFO` at this priority (1–99; 0 = off)
+    /// where the process may (root, `CAP_SYS_NICE`, `RLIMIT_RTPRIO`), ahead of every ordinary
+    /// thread; otherwise as before, and the report says so
+    /// ([`crate::runtime::thread_priority::RealtimeGuard`]).
+    pub tracking_fifo_priority: i32,
     /// Seed each new keyframe with the previous keyframe's map (DPPTAM's propagation).
     pub propagate_maps: bool,
     /// Prior standard deviation of the accelerometer bias when motion starts, m/s² (each axis;
@@ -361,6 +366,7 @@ impl Default for BootstrapConfig {
             max_view_backlog: 2,
             background_nice: 10,
             refinement_nice: 2,
+            tracking_fifo_priority: 10,
             propagate_maps: true,
             rest_accel_bias_std_m_s2: 0.1,
             rest_min_tilt_std_rad: 1e-3,
