@@ -202,13 +202,17 @@ pub(crate) fn textured_pyramid(cam: &CameraModel) -> Pyramid {
     pyr
 }
 
-/// A turn on the spot's job for tests: a camera turned 0.1 rad to the right of a keyframe whose
-/// map (a sparse grid) covers the left half of its image at 2 m, on [`textured_pyramid`].
+/// A keyframe's map for tests: points at 2 m on a grid of `step_px` over the left half of the
+/// image, `margin_px` from its edges.
 #[cfg(test)]
-pub(crate) fn turned_job(cam: &CameraModel, id: u32) -> GuessedKeyframeJob {
-    let points = (20..cam.height as u32 - 20)
-        .step_by(24)
-        .flat_map(|v| (20..cam.width as u32 / 2).step_by(24).map(move |u| (u, v)))
+pub(crate) fn left_half_map(cam: &CameraModel, margin_px: u32, step_px: usize) -> SemidenseMap {
+    let points = (margin_px..cam.height as u32 - margin_px)
+        .step_by(step_px)
+        .flat_map(|v| {
+            (margin_px..cam.width as u32 / 2)
+                .step_by(step_px)
+                .map(move |u| (u, v))
+        })
         .map(|(u, v)| MapPoint {
             u_px: u as f32,
             v_px: v as f32,
@@ -217,11 +221,18 @@ pub(crate) fn turned_job(cam: &CameraModel, id: u32) -> GuessedKeyframeJob {
             num_views: 3,
         })
         .collect();
-    let map = SemidenseMap {
+    SemidenseMap {
         t_world_cam: Isometry3::identity(),
         camera: *cam,
         points,
-    };
+    }
+}
+
+/// A turn on the spot's job for tests: a camera turned 0.1 rad to the right of a keyframe whose
+/// map (a sparse grid) covers the left half of its image at 2 m, on [`textured_pyramid`].
+#[cfg(test)]
+pub(crate) fn turned_job(cam: &CameraModel, id: u32) -> GuessedKeyframeJob {
+    let map = left_half_map(cam, 20, 24);
     let t_new_old = Isometry3::new(nalgebra::Vector3::zeros(), nalgebra::Vector3::y() * -0.1);
     GuessedKeyframeJob {
         id,
@@ -388,23 +399,7 @@ mod tests {
         let pyr = textured_pyramid(&cam);
         let cfg = TrackerConfig::default();
         // Map points over the left half of the image.
-        let points = (0..cam.height as u32)
-            .step_by(4)
-            .flat_map(|v| {
-                (0..cam.width as u32 / 2).step_by(4).map(move |u| MapPoint {
-                    u_px: u as f32,
-                    v_px: v as f32,
-                    inv_depth_m_inv: 0.5,
-                    inv_depth_std_m_inv: 0.01,
-                    num_views: 3,
-                })
-            })
-            .collect();
-        let map = SemidenseMap {
-            t_world_cam: Isometry3::identity(),
-            camera: cam,
-            points,
-        };
+        let map = left_half_map(&cam, 0, 4);
         assert_eq!(median_inv_depth(&map), Some(0.5));
         let all = select_gradient_pixels(&pyr, &cfg).len();
         let fill = depthless_points(&pyr, &map, 0.25, &cfg);
