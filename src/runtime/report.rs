@@ -347,7 +347,7 @@ impl ReplayReport {
         );
         let map_scale_pct = |p: f64| percentile_if_any(&map_scale, p);
         let rest = out.odometry.rest_imu_density;
-        let kb_ms = sorted(out.odometry.keyframe_bundle_s.iter().map(|t| t * 1e3));
+        let kb_ms = sorted(out.odometry.keyframe_bundle_s().iter().map(|t| t * 1e3));
         let map_lat = sorted(
             out.odometry
                 .keyframe_map_latency_frames
@@ -362,19 +362,19 @@ impl ReplayReport {
         );
         let kb_change = sorted(
             out.odometry
-                .keyframe_bundle_depth_changes
+                .keyframe_bundle_depth_changes()
                 .iter()
                 .map(|c| c * 100.0),
         );
         let kb_bias = sorted(
             out.odometry
-                .keyframe_bundle_accel_bias_jumps_m_s2
+                .keyframe_bundle_accel_bias_jumps_m_s2()
                 .iter()
                 .copied(),
         );
         let kb_dv = sorted(
             out.odometry
-                .keyframe_bundle_velocity_changes_m_s
+                .keyframe_bundle_velocity_changes_m_s()
                 .iter()
                 .copied(),
         );
@@ -512,7 +512,7 @@ impl ReplayReport {
             keyframe_bundle_accel_bias_jump_max_m_s2: kb_bias.last().copied().unwrap_or(0.0),
             keyframe_bundle_velocity_change_p50_m_s: percentile(&kb_dv, 50.0),
             keyframe_bundle_velocity_change_max_m_s: kb_dv.last().copied().unwrap_or(0.0),
-            refinements_rejected: out.odometry.refinements_rejected,
+            refinements_rejected: out.odometry.refinements_rejected(),
             refinements_dropped: out.odometry.refinements_dropped,
             refinements_discarded: out.odometry.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.odometry.catch_up_frames,

@@ -557,21 +557,6 @@ pub struct OdometryStats {
     pub takeoff_pass_views: Vec<usize>,
     /// Frames between sending each applied take-off refinement pass and applying it.
     pub takeoff_pass_lag_frames: Vec<u64>,
-    /// Wall time of each in-flight keyframe adjustment (`[keyframe_bundle]`), s.
-    pub keyframe_bundle_s: Vec<f64>,
-    /// Median relative inverse-depth change of each in-flight keyframe adjustment.
-    pub keyframe_bundle_depth_changes: Vec<f64>,
-    /// Norm of the accelerometer-bias change each applied keyframe adjustment handed to the
-    /// tracker (its estimate from the keyframe's few tenths of a second of views minus the
-    /// tracker's), m/s². The bias should move by its random walk (~0.003 m/s² per √s on the
-    /// EuRoC IMU); jumps of tenths mean the adjustment explains a pose or depth error with it.
-    pub keyframe_bundle_accel_bias_jumps_m_s2: Vec<f64>,
-    /// Norm of the change of the last view's velocity of each keyframe adjustment that came back
-    /// with a finite result (its adjusted state minus the one tracking had), applied or not, m/s.
-    pub keyframe_bundle_velocity_changes_m_s: Vec<f64>,
-    /// Keyframe adjustments not applied because they moved that velocity by more than
-    /// `[keyframe_bundle] max_velocity_change_m_s`.
-    pub refinements_rejected: usize,
     /// Take-off refinements and keyframe adjustments not started: their thread was still busy
     /// (real time).
     pub refinements_dropped: usize,
@@ -580,7 +565,9 @@ pub struct OdometryStats {
     pub refinements_discarded: usize,
     /// Frames tracked again against an adjusted keyframe that came back after them.
     pub catch_up_frames: usize,
-    /// Every keyframe adjustment that came back, in order (`OUT/adjustments.csv`).
+    /// Every keyframe adjustment that came back, in order (`OUT/adjustments.csv`): what each
+    /// changed and what became of it ([`OdometryStats::keyframe_bundle_s`] and the other
+    /// figures per adjustment are read from it).
     pub adjustments: Vec<AdjustmentRecord>,
     /// Scale change (new / old depths) of each keyframe tracked with guessed depths and then
     /// adjusted with its depths free (`[keyframe_bundle] guessed_min_baseline_ratio`).
@@ -613,6 +600,60 @@ pub struct OdometryStats {
     pub vignette_corrected: bool,
     /// Pixels clipped at 255 by the vignetting correction (bright texture in the corners).
     pub vignette_saturated_px: u64,
+}
+
+impl OdometryStats {
+    /// The in-flight keyframe adjustments applied (`[keyframe_bundle]`), in order.
+    fn applied_adjustments(&self) -> impl Iterator<Item = &AdjustmentRecord> {
+        self.adjustments
+            .iter()
+            .filter(|r| r.outcome == AdjustmentOutcome::Applied)
+    }
+
+    /// Wall time of each applied keyframe adjustment on the refinement thread, s.
+    pub fn keyframe_bundle_s(&self) -> Vec<f64> {
+        self.applied_adjustments().map(|r| r.time_s).collect()
+    }
+
+    /// Median relative inverse-depth change of each applied keyframe adjustment.
+    pub fn keyframe_bundle_depth_changes(&self) -> Vec<f64> {
+        self.applied_adjustments().map(|r| r.depth_change).collect()
+    }
+
+    /// Norm of the accelerometer-bias change each applied keyframe adjustment handed to the
+    /// tracker (its estimate from the keyframe's few tenths of a second of views minus the
+    /// tracker's), m/s². The bias should move by its random walk (~0.003 m/s² per √s on the
+    /// EuRoC IMU); jumps of tenths mean the adjustment explains a pose or depth error with it.
+    pub fn keyframe_bundle_accel_bias_jumps_m_s2(&self) -> Vec<f64> {
+        self.applied_adjustments()
+            .map(|r| r.accel_bias_jump_m_s2)
+            .collect()
+    }
+
+    /// Norm of the change of the last view's velocity of each keyframe adjustment that came back
+    /// with a finite result (its adjusted state minus the one tracking had), applied or
+    /// rejected, m/s.
+    pub fn keyframe_bundle_velocity_changes_m_s(&self) -> Vec<f64> {
+        self.adjustments
+            .iter()
+            .filter(|r| {
+                matches!(
+                    r.outcome,
+                    AdjustmentOutcome::Applied | AdjustmentOutcome::Rejected
+                )
+            })
+            .map(|r| r.velocity_change_m_s)
+            .collect()
+    }
+
+    /// Keyframe adjustments not applied because they moved that velocity by more than
+    /// `[keyframe_bundle] max_velocity_change_m_s`.
+    pub fn refinements_rejected(&self) -> usize {
+        self.adjustments
+            .iter()
+            .filter(|r| r.outcome == AdjustmentOutcome::Rejected)
+            .count()
+    }
 }
 
 impl OdometryStats {

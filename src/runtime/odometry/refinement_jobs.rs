@@ -336,7 +336,6 @@ impl Odometry {
         });
         if let Some(a) = &adjusted {
             let dv_m_s = (a.last_view.nav.v_world_m_s - tracked_last.nav.v_world_m_s).norm();
-            self.stats.keyframe_bundle_velocity_changes_m_s.push(dv_m_s);
             record.velocity_change_m_s = dv_m_s;
             record.accel_bias_jump_m_s2 =
                 (a.last_view.bias.accel_m_s2 - self.tracker.state().bias.accel_m_s2).norm();
@@ -345,7 +344,6 @@ impl Odometry {
             // and all: not limited.)
             let max_m_s = self.cfg.keyframe_bundle.max_velocity_change_m_s;
             if !tracked && max_m_s > 0.0 && dv_m_s > max_m_s {
-                self.stats.refinements_rejected += 1;
                 record.outcome = AdjustmentOutcome::Rejected;
                 adjusted = None;
             }
@@ -387,9 +385,6 @@ impl Odometry {
             }
         }
         // (Installing the keyframe leaves the tracker's state alone: the jump measured above.)
-        self.stats
-            .keyframe_bundle_accel_bias_jumps_m_s2
-            .push(record.accel_bias_jump_m_s2);
         let cov = *self.tracker.covariance();
         // The frames kept for the next keyframe that were tracked after the last view and are not
         // tracked again are moved by the last view's correction.
@@ -439,10 +434,6 @@ impl Odometry {
                 }
             }
         }
-        self.stats.keyframe_bundle_s.push(time_s);
-        self.stats
-            .keyframe_bundle_depth_changes
-            .push(a.median_inv_depth_change);
     }
 
     /// How many of the frames tracked while an adjustment is under way are tracked again when it
