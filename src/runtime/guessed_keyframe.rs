@@ -213,13 +213,7 @@ pub(crate) fn left_half_map(cam: &CameraModel, margin_px: u32, step_px: usize) -
                 .step_by(step_px)
                 .map(move |u| (u, v))
         })
-        .map(|(u, v)| MapPoint {
-            u_px: u as f32,
-            v_px: v as f32,
-            inv_depth_m_inv: 0.5,
-            inv_depth_std_m_inv: 0.01,
-            num_views: 3,
-        })
+        .map(|(u, v)| MapPoint::at_2_m(u as f32, v as f32))
         .collect();
     SemidenseMap {
         t_world_cam: Isometry3::identity(),

@@ -79,13 +79,7 @@ mod tests {
             }
         }
         let points = every_other_pixel(4)
-            .map(|(u, v)| MapPoint {
-                u_px: u as f32,
-                v_px: v as f32,
-                inv_depth_m_inv: 0.5,
-                inv_depth_std_m_inv: 0.01,
-                num_views: 3,
-            })
+            .map(|(u, v)| MapPoint::at_2_m(u as f32, v as f32))
             .collect();
         let t_world_cam = Isometry3::from_parts(
             Translation3::new(0.5, -0.2, 1.0),

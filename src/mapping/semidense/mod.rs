@@ -284,6 +284,20 @@ pub struct MapPoint {
     pub num_views: u16,
 }
 
+#[cfg(test)]
+impl MapPoint {
+    /// A test point at pixel `(u_px, v_px)`, 2 m away (inverse depth 0.5 ± 0.01 /m, 3 views).
+    pub(crate) fn at_2_m(u_px: f32, v_px: f32) -> Self {
+        MapPoint {
+            u_px,
+            v_px,
+            inv_depth_m_inv: 0.5,
+            inv_depth_std_m_inv: 0.01,
+            num_views: 3,
+        }
+    }
+}
+
 /// Why a whole view was skipped by [`SemidenseKeyframe::observe`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ViewSkip {
