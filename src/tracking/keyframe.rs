@@ -21,7 +21,7 @@ pub struct DepthPoint {
 }
 
 /// One pyramid level's points, structure-of-arrays in `f32` (the per-pixel hot path).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct LevelPoints {
     /// Point in the keyframe camera frame, m.
     pub p_kf_m: Vec<[f32; 3]>,
@@ -420,13 +420,7 @@ mod tests {
         );
         assert!(a.num_points() > 1000, "{}", a.num_points());
         assert_eq!(a.median_depth_m, b.median_depth_m);
-        assert_eq!(a.levels.len(), b.levels.len());
-        for (la, lb) in a.levels.iter().zip(&b.levels) {
-            assert_eq!(la.p_kf_m, lb.p_kf_m);
-            assert_eq!(la.intensity, lb.intensity);
-            assert_eq!(la.jacobian, lb.jacobian);
-            assert_eq!(la.weight, lb.weight);
-        }
+        assert_eq!(a.levels, b.levels);
     }
 
     #[test]

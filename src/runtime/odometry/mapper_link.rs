@@ -375,9 +375,10 @@ impl Odometry {
             return;
         }
         let t_new_old = t_world_cam.inverse() * old.t_world_cam;
-        let pyramid = match (self.builder.is_some(), self.spare_pyramid.take()) {
-            (true, Some(spare)) => self.tracker.swap_frame_pyramid(spare),
-            _ => self.tracker.frame_pyramid().clone(),
+        // (The spare exists with the builder thread, which hands it back with each build.)
+        let pyramid = match self.spare_pyramid.take() {
+            Some(spare) => self.tracker.swap_frame_pyramid(spare),
+            None => self.tracker.frame_pyramid().clone(),
         };
         let job = GuessedKeyframeJob {
             id,

@@ -654,9 +654,7 @@ impl OdometryStats {
             .filter(|r| r.outcome == AdjustmentOutcome::Rejected)
             .count()
     }
-}
 
-impl OdometryStats {
     /// `[window] gyro_misalignment`: the gyro's turn as the keyframe window last solved it, rad
     /// (`None` before its first solve, or without the estimate).
     pub fn window_gyro_misalignment_rad(&self) -> Option<Vector3<f64>> {
