@@ -1,7 +1,8 @@
 //! One tracking step (issue 4): a 752x480 frame of the built-in flight tracked against a keyframe
 //! 100 ms earlier with ground-truth depth, from the IMU prediction — pyramid, coarse-to-fine joint
 //! visual-inertial Gauss-Newton and covariance. Also the keyframe construction it amortises, with
-//! the points unprojected and with their rays looked up.
+//! the points unprojected and with their rays looked up, and with as many points as a semidense
+//! map has.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use vidslam::camera::PixelRays;
@@ -50,6 +51,33 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             let t_world_cam = tr.t_world_cam();
             Keyframe::from_rays(0, f0.t, tr.frame_pyramid(), &rays, t_world_cam, &pts, &cfg)
+        })
+    });
+    // A semidense map's size (the mapper's keyframes carry 8–20 thousand points): every
+    // gradient pixel of 2x2 cells, so the per-level selection has many more candidates than cells
+    // it keeps.
+    let dense_cfg = TrackerConfig {
+        select_cell_px: 2,
+        ..cfg.clone()
+    };
+    let dense_pts = depth_points_from_map(
+        &select_gradient_pixels(tr.frame_pyramid(), &dense_cfg),
+        &depth,
+        0.05,
+    );
+    let dense_name = format!("keyframe_from_rays_{}_points_752x480", dense_pts.len());
+    c.bench_function(&dense_name, |b| {
+        b.iter(|| {
+            let t_world_cam = tr.t_world_cam();
+            Keyframe::from_rays(
+                0,
+                f0.t,
+                tr.frame_pyramid(),
+                &rays,
+                t_world_cam,
+                &dense_pts,
+                &cfg,
+            )
         })
     });
     let kf = make_kf(&mut tr);

@@ -150,6 +150,55 @@ fn offline_replays_are_identical() {
     }
 }
 
+/// `[bootstrap] mapper_builds_keyframes` (the default): the mapping thread builds the tracker's
+/// keyframe of each map the tracking thread says it may install next, so that the tracking thread
+/// installs new keyframes and refreshes without building them — all but the first map, whose
+/// installation waits for a baseline and is not hinted (nor are the depthless fills of turns on
+/// the spot, which this take-off has none of). The keyframes are the ones the tracking
+/// thread would build (the same function of the same map, posed when installed): the replay is
+/// the one with every keyframe built on the tracking thread, to the bit.
+#[test]
+fn keyframes_the_mapper_builds_leave_the_replay_unchanged() {
+    let dir = takeoff();
+    // (New keyframes installed as mapped: adjusted ones are built on the refinement thread,
+    // from the mapper's keyframe where it built one.)
+    let mut opts = ReplayOptions::default();
+    opts.keyframe_bundle.enabled = false;
+    let mut inline = opts.clone();
+    inline.bootstrap.mapper_builds_keyframes = false;
+    let a = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let b = replay(&dir, &inline, &mut |_, _| {}).unwrap();
+    let (sa, sb) = (&a.odometry, &b.odometry);
+    println!(
+        "maps taken with their keyframe built by the mapper / the tracking thread: {} / {} ({} built by \
+         the mapper); all on the tracking thread: {}",
+        sa.keyframes_built_by_mapper,
+        sa.keyframes_built_on_tracking_thread,
+        a.mapping.tracker_keyframe_build_s.len(),
+        sb.keyframes_built_on_tracking_thread
+    );
+    assert!(sa.keyframes_built_by_mapper > 0);
+    assert!(a.mapping.tracker_keyframe_build_s.len() >= sa.keyframes_built_by_mapper);
+    assert_eq!(sb.keyframes_built_by_mapper, 0);
+    assert!(b.mapping.tracker_keyframe_build_s.is_empty());
+    assert_eq!(
+        sa.keyframes_built_by_mapper + sa.keyframes_built_on_tracking_thread,
+        sb.keyframes_built_on_tracking_thread,
+        "the same maps installed"
+    );
+    // The first map is the tracking thread's: built for each take-off refinement pass and
+    // once more to be installed (a take-off with no loss).
+    assert_eq!(
+        sa.keyframes_built_on_tracking_thread,
+        1 + sa.takeoff_refinement_s.len()
+    );
+    let (ta, tb) = (trajectory(&a), trajectory(&b));
+    assert_eq!(ta.poses.len(), tb.poses.len());
+    for (p, q) in ta.poses.iter().zip(&tb.poses) {
+        assert_eq!(p, q, "replays differ");
+    }
+}
+
 /// `[bootstrap] rest_imu_noise_factor`: the IMU is weighted from the take-off on by the noise the
 /// pad measured (rotor vibration included) instead of the fixed `imu_noise_scale` — each sensor's
 /// scale is its measured ratio to `sensor.yaml` (at least 1) times the factor, it reaches the

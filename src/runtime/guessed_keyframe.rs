@@ -98,6 +98,7 @@ pub fn build_guessed_keyframe(
         views: 0,
         forward_views: 0,
         time_s: 0.0,
+        tracker_keyframe: None,
     };
     Some((kf, snapshot))
 }

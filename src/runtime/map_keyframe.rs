@@ -9,13 +9,17 @@
 //! adjusted is now built by the refinement thread, with its adjustment
 //! ([`super::refinement_worker::KeyframeToAdjust`]); the others (the first map, refreshes,
 //! keyframes that cannot wait for an adjustment) here, inline. The result does not depend on
-//! the thread.
+//! the thread. Since the mapper builds the keyframes of the maps the tracker says it would
+//! install next ([`super::mapping_worker::InstallHint`]), most arrive built
+//! ([`MapSnapshot::tracker_keyframe`], [`take_keyframe`]): the build is the same function of the
+//! same map, with the pose set afterwards, so a keyframe is the same wherever it was built.
 
 use super::mapping_worker::MapSnapshot;
 use crate::camera::PixelRays;
 use crate::mapping::semidense::SemidenseMap;
 use crate::tracking::{DepthPoint, Keyframe, TrackerConfig};
 use nalgebra::Isometry3;
+use std::sync::Arc;
 
 /// The tracker's keyframe of snapshot `s` (sampled from its pyramid; `extra` points appended to
 /// the map's: the depthless fill) at pose `t_world_cam` (the tracker's world: the mapper's pose
@@ -40,6 +44,43 @@ pub fn build(
     )
 }
 
+/// The tracker's keyframe of snapshot `s` at pose `t_world_cam`: the one the mapper built beside
+/// the map, taken out of the snapshot (no copy where the snapshot held the only reference), or
+/// built now ([`build`], no extra points). Also says whether it came built.
+pub fn take_keyframe(
+    s: &mut MapSnapshot,
+    t_world_cam: Isometry3<f64>,
+    rays: &PixelRays,
+    cfg: &TrackerConfig,
+) -> (Keyframe, bool) {
+    match s.tracker_keyframe.take() {
+        Some(kf) => {
+            let mut kf = Arc::unwrap_or_clone(kf);
+            kf.t_world_cam = t_world_cam;
+            (kf, true)
+        }
+        None => (build(s, Vec::new(), t_world_cam, rays, cfg), false),
+    }
+}
+
+/// [`take_keyframe`] for a snapshot that stays whole (the refinement thread's): the mapper's
+/// keyframe copied, or built now.
+pub fn keyframe_of(
+    s: &MapSnapshot,
+    t_world_cam: Isometry3<f64>,
+    rays: &PixelRays,
+    cfg: &TrackerConfig,
+) -> Keyframe {
+    match &s.tracker_keyframe {
+        Some(kf) => {
+            let mut kf = Keyframe::clone(kf);
+            kf.t_world_cam = t_world_cam;
+            kf
+        }
+        None => build(s, Vec::new(), t_world_cam, rays, cfg),
+    }
+}
+
 /// A map's points as the tracker's keyframe takes them.
 pub fn depth_points(map: &SemidenseMap) -> Vec<DepthPoint> {
     map.points
@@ -61,7 +102,6 @@ mod tests {
     use crate::time::TimeNs;
     use crate::tracking::NUM_LEVELS;
     use nalgebra::{Translation3, UnitQuaternion};
-    use std::sync::Arc;
 
     /// Every other pixel of the 64x48 test image from `(first, first)`, 4 pixels inside.
     fn every_other_pixel(first: u32) -> impl Iterator<Item = (u32, u32)> {
@@ -99,6 +139,7 @@ mod tests {
             views: 4,
             forward_views: 2,
             time_s: 0.0,
+            tracker_keyframe: None,
         }
     }
 
@@ -145,5 +186,34 @@ mod tests {
         };
         assert_eq!(near(&kf), 0);
         assert!(near(&more) > 0, "no extra point at 0.5 m selected");
+    }
+
+    #[test]
+    fn a_keyframe_the_mapper_built_is_the_one_built_here_posed_where_installed() {
+        let mut s = snapshot();
+        let rays = PixelRays::new(&s.map.camera);
+        let cfg = TrackerConfig::default();
+        let pose = Isometry3::translation(0.1, 0.2, 0.3);
+        let here = build(&s, Vec::new(), pose, &rays, &cfg);
+        // Not built by the mapper: built now.
+        let (kf, came_built) = take_keyframe(&mut s.clone(), pose, &rays, &cfg);
+        assert!(!came_built);
+        assert_eq!(kf.levels, here.levels);
+        // Built by the mapper at the identity: posed, otherwise the same, and taken out.
+        s.tracker_keyframe = Some(Arc::new(build(
+            &s,
+            Vec::new(),
+            Isometry3::identity(),
+            &rays,
+            &cfg,
+        )));
+        let copied = keyframe_of(&s, pose, &rays, &cfg);
+        assert_eq!((copied.t_world_cam, &copied.levels), (pose, &here.levels));
+        let (kf, came_built) = take_keyframe(&mut s, pose, &rays, &cfg);
+        assert!(came_built);
+        assert!(s.tracker_keyframe.is_none(), "left in the snapshot");
+        assert_eq!((kf.id, kf.t, kf.t_world_cam), (here.id, here.t, pose));
+        assert_eq!(kf.levels, here.levels);
+        assert_eq!(kf.median_depth_m, here.median_depth_m);
     }
 }

@@ -8,13 +8,18 @@
 //! In offline mode it waits for the snapshot of each job at a fixed frame lag, which makes a replay
 //! deterministic. The dense (superpixel) thread of section IV-B will hang off the same snapshots:
 //! [`MappingOutput::keyframe_maps`] is what it will consume.
+//!
+//! With a [`TrackerKeyframeBuilder`] the mapper also builds the tracker's keyframe of the maps the
+//! tracking thread says it may install next ([`InstallHint`], sent with every view), so that
+//! installing one costs the tracking thread nothing but the swap; the build does not depend on
+//! the keyframe's pose, which the tracker sets when it installs it.
 
 use super::true_view_poses::{TrueCameraPoses, ViewPoser};
 use crate::camera::CameraModel;
 use crate::image::{Image, Pyramid};
 use crate::mapping::semidense::{SemidenseConfig, SemidenseKeyframe, SemidenseMap};
 use crate::time::TimeNs;
-use crate::tracking::NUM_LEVELS;
+use crate::tracking::{Keyframe, NUM_LEVELS};
 use crossbeam_channel::{Receiver, Sender, bounded};
 use nalgebra::{Isometry3, Point3};
 use std::collections::VecDeque;
@@ -46,12 +51,61 @@ pub enum MapJob {
         seed: Option<Arc<SemidenseMap>>,
         /// Search range of inverse depth, 1/m (`None`: the configured one).
         inv_depth_range_m_inv: Option<(f64, f64)>,
+        hint: InstallHint,
     },
     /// Another view of the current keyframe.
-    Observe { seq: u64, frame: MapFrame },
+    Observe {
+        seq: u64,
+        frame: MapFrame,
+        hint: InstallHint,
+    },
     /// Keyframe `id`'s inverse depths multiplied by `factor` (its adjustment found the scale of
     /// the poses it was triangulated from off); ignored if `id` is no longer the current keyframe.
     ScaleDepths { seq: u64, id: u32, factor: f64 },
+}
+
+/// Which maps the tracking thread may install at its next frames, as it knows when it sends a
+/// job (the last job's hint holds until the next): the mapper builds the tracker's keyframe of
+/// those ([`MapSnapshot::tracker_keyframe`]).
+/// A hint that misses costs only time: a map installed without its keyframe built is built then.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct InstallHint {
+    /// The new keyframe awaited (`pending`), from a map of `min_points` points.
+    pub new: Option<NewKeyframeHint>,
+    /// The keyframe tracked and the points above which a map of it is taken as a refresh.
+    pub refresh: Option<(u32, usize)>,
+}
+
+/// The new keyframe the tracker awaits ([`InstallHint::new`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NewKeyframeHint {
+    pub id: u32,
+    pub min_points: usize,
+}
+
+impl InstallHint {
+    /// Might a map of keyframe `id` with `points` points be installed?
+    pub fn would_install(&self, id: u32, points: usize) -> bool {
+        let new = self
+            .new
+            .is_some_and(|h| h.id == id && points >= h.min_points);
+        let refresh = self
+            .refresh
+            .is_some_and(|(kf, above)| kf == id && points > above);
+        new || refresh
+    }
+}
+
+/// Builds the tracker's keyframe of a snapshot's map, posed at the identity (the tracker poses
+/// it when it installs it): the odometry's [`super::map_keyframe::build`], handed in so that this
+/// thread need not know the tracker's settings.
+#[derive(Clone)]
+pub struct TrackerKeyframeBuilder(pub Arc<dyn Fn(&MapSnapshot) -> Keyframe + Send + Sync>);
+
+impl std::fmt::Debug for TrackerKeyframeBuilder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("TrackerKeyframeBuilder")
+    }
 }
 
 impl MapJob {
@@ -81,6 +135,10 @@ pub struct MapSnapshot {
     pub forward_views: usize,
     /// Time the job took, s.
     pub time_s: f64,
+    /// The tracker's keyframe of `map`, posed at the identity, where the tracker said it may
+    /// install this map ([`InstallHint`]) and the mapper has a [`TrackerKeyframeBuilder`]. Built
+    /// from `map` as sent: a snapshot whose map is replaced must drop it.
+    pub tracker_keyframe: Option<Arc<Keyframe>>,
 }
 
 /// What the mapping thread leaves behind when its job queue closes.
@@ -97,6 +155,8 @@ pub struct MappingOutput {
     pub view_scales: Vec<f32>,
     /// Real time: views of the keyframe the mapper skipped to keep up ([`MappingOptions`]).
     pub views_skipped: usize,
+    /// Time of each tracker keyframe built here ([`MapSnapshot::tracker_keyframe`]), s.
+    pub tracker_keyframe_build_s: Vec<f64>,
 }
 
 impl MappingOutput {
@@ -135,6 +195,9 @@ pub struct MappingOptions {
     /// Diagnostic (`vidslam replay --mapping-poses gt`): views are triangulated from the true
     /// motion from their keyframe instead of their tracked poses ([`super::true_view_poses`]).
     pub true_view_poses: Option<Arc<TrueCameraPoses>>,
+    /// Builds the tracker's keyframes of the maps it may install next (`None`: the tracking
+    /// thread builds them all).
+    pub tracker_keyframes: Option<TrackerKeyframeBuilder>,
 }
 
 /// Handle of a running mapping thread.
@@ -230,6 +293,7 @@ fn run(
     let mut scratch = Image::<f32>::new(camera.width, camera.height);
     let mut backlog = VecDeque::new();
     let mut poser = opts.true_view_poses.clone().map(ViewPoser::new);
+    let mut hint = InstallHint::default();
     loop {
         if backlog.is_empty() {
             match jobs.recv() {
@@ -254,8 +318,10 @@ fn run(
                 propagate,
                 seed,
                 inv_depth_range_m_inv,
+                hint: h,
                 ..
             } => {
+                hint = h;
                 let previous = cur.take().map(|c| {
                     let m = Arc::new(c.kf.map());
                     out.keyframe_maps.push(m.clone());
@@ -290,7 +356,8 @@ fn run(
                     forward_views: 0,
                 });
             }
-            MapJob::Observe { frame, .. } => {
+            MapJob::Observe { frame, hint: h, .. } => {
+                hint = h;
                 if let Some(c) = cur.as_mut() {
                     to_f32(&frame.image, &mut scratch);
                     let st = c.kf.observe(&scratch, &view_pose(&poser, &frame));
@@ -310,7 +377,7 @@ fn run(
         let time_s = started.elapsed().as_secs_f64();
         out.job_times_s.push(time_s);
         let Some(c) = cur.as_ref() else { continue };
-        let snap = MapSnapshot {
+        let mut snap = MapSnapshot {
             seq,
             keyframe_id: c.id,
             keyframe_t: c.t,
@@ -320,7 +387,16 @@ fn run(
             views: c.views,
             forward_views: c.forward_views,
             time_s,
+            tracker_keyframe: None,
         };
+        if let Some(TrackerKeyframeBuilder(build)) = &opts.tracker_keyframes
+            && hint.would_install(c.id, snap.map.points.len())
+        {
+            let started = Instant::now();
+            snap.tracker_keyframe = Some(Arc::new(build(&snap)));
+            out.tracker_keyframe_build_s
+                .push(started.elapsed().as_secs_f64());
+        }
         if snapshots.send(snap).is_err() {
             break;
         }
@@ -366,6 +442,7 @@ mod tests {
         MapJob::Observe {
             seq,
             frame: frame(seq as i64),
+            hint: InstallHint::default(),
         }
     }
 
@@ -378,6 +455,7 @@ mod tests {
             propagate: true,
             seed: None,
             inv_depth_range_m_inv: None,
+            hint: InstallHint::default(),
         }
     }
 
@@ -420,5 +498,106 @@ mod tests {
             "at least one view is kept"
         );
         assert_eq!(seqs(&only_views), vec![5]);
+    }
+
+    #[test]
+    fn a_hint_names_the_new_keyframe_awaited_and_the_refresh_taken() {
+        let hint = InstallHint {
+            new: Some(NewKeyframeHint {
+                id: 5,
+                min_points: 100,
+            }),
+            refresh: Some((4, 1000)),
+        };
+        assert!(hint.would_install(5, 100));
+        assert!(
+            !hint.would_install(5, 99),
+            "too few points for a new keyframe"
+        );
+        assert!(hint.would_install(4, 1001));
+        assert!(!hint.would_install(4, 1000), "not grown past the refresh");
+        assert!(!hint.would_install(3, 100_000), "a keyframe left behind");
+        assert!(!InstallHint::default().would_install(5, 100_000));
+    }
+
+    #[test]
+    fn the_mapper_builds_the_trackers_keyframe_of_the_maps_hinted_only() {
+        use crate::camera::{Distortion, PixelRays};
+        use crate::tracking::TrackerConfig;
+        let camera = CameraModel::new(64, 48, [50.0, 50.0, 31.5, 23.5], Distortion::None).unwrap();
+        let (rays, cfg) = (PixelRays::new(&camera), TrackerConfig::default());
+        let builds = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let counted = builds.clone();
+        let builder = TrackerKeyframeBuilder(Arc::new(move |s: &MapSnapshot| {
+            counted.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            super::super::map_keyframe::build(s, Vec::new(), Isometry3::identity(), &rays, &cfg)
+        }));
+        let mapper = MappingThread::spawn(
+            SemidenseConfig::default(),
+            camera,
+            MappingOptions {
+                queue_len: 8,
+                realtime: false,
+                max_view_backlog: 2,
+                nice_increment: 0,
+                true_view_poses: None,
+                tracker_keyframes: Some(builder),
+            },
+        );
+        let image = Arc::new(Image::from_fn(64, 48, |x, y| {
+            (((x / 4 + y / 4) % 2) * 180 + 30) as u8
+        }));
+        let at = |t_ns: i64, x_m: f64| MapFrame {
+            t: TimeNs(t_ns),
+            image: image.clone(),
+            t_world_cam: Isometry3::translation(x_m, 0.0, 0.0),
+        };
+        let awaited = |id| InstallHint {
+            new: Some(NewKeyframeHint { id, min_points: 0 }),
+            refresh: None,
+        };
+        let jobs = [
+            MapJob::NewKeyframe {
+                seq: 1,
+                id: 7,
+                frame: at(0, 0.0),
+                history: Vec::new(),
+                propagate: false,
+                seed: None,
+                inv_depth_range_m_inv: None,
+                hint: awaited(7),
+            },
+            MapJob::Observe {
+                seq: 2,
+                frame: at(1, 0.02),
+                hint: InstallHint::default(),
+            },
+            MapJob::Observe {
+                seq: 3,
+                frame: at(2, 0.04),
+                hint: awaited(6), // (another keyframe's)
+            },
+            MapJob::Observe {
+                seq: 4,
+                frame: at(3, 0.06),
+                hint: awaited(7),
+            },
+        ];
+        for j in jobs {
+            mapper.jobs.send(j).unwrap();
+        }
+        let snaps: Vec<MapSnapshot> = (0..4).map(|_| mapper.snapshots.recv().unwrap()).collect();
+        let out = mapper.finish();
+        let built: Vec<bool> = snaps.iter().map(|s| s.tracker_keyframe.is_some()).collect();
+        assert_eq!(built, [true, false, false, true]);
+        assert_eq!(builds.load(std::sync::atomic::Ordering::SeqCst), 2);
+        assert_eq!(out.tracker_keyframe_build_s.len(), 2);
+        let kf = snaps[3].tracker_keyframe.as_ref().unwrap();
+        assert_eq!((kf.id, kf.t), (7, TimeNs(0)));
+        assert_eq!(
+            kf.t_world_cam,
+            Isometry3::identity(),
+            "posed by the tracker"
+        );
     }
 }

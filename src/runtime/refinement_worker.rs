@@ -12,7 +12,7 @@
 //! outcome at a fixed frame lag, which keeps a replay deterministic.
 
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
-use super::map_keyframe::build;
+use super::map_keyframe::keyframe_of;
 use super::mapping_worker::MapSnapshot;
 use super::takeoff::{
     RefinedTakeoff, TakeoffRecord, TakeoffRig, bundle_adjust_takeoff, refine_takeoff,
@@ -223,7 +223,7 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
                     snapshot,
                     t_world_cam,
                 } => {
-                    let kf = build(snapshot, Vec::new(), *t_world_cam, &s.rays, &s.tracking);
+                    let kf = keyframe_of(snapshot, *t_world_cam, &s.rays, &s.tracking);
                     RefineResult::Keyframe {
                         adjusted: adjust_keyframe(s, j, &kf),
                         unadjusted: Some(Box::new(kf)),

@@ -92,6 +92,15 @@ pub struct ReplayReport {
     /// Keyframes of turns on the spot made by the tracking thread without waiting for the mapper
     /// (`[bootstrap] fill_without_mapper`).
     pub spot_turn_keyframes: usize,
+    /// Mapper maps taken for tracking (or a take-off refinement pass) whose keyframe the mapping
+    /// thread had built (`[bootstrap] mapper_builds_keyframes`), and those the tracking thread
+    /// built itself, inside its frame.
+    pub keyframes_built_by_mapper: usize,
+    pub keyframes_built_on_tracking_thread: usize,
+    /// Tracker keyframes the mapping thread built (installed or not) and their build time, ms.
+    pub mapper_keyframe_builds: usize,
+    pub mapper_keyframe_build_ms_p50: Option<f64>,
+    pub mapper_keyframe_build_ms_max: Option<f64>,
     /// New keyframes started when the keyframe tracked had reached `[tracking]
     /// keyframe_max_age_s`.
     pub aged_keyframes: usize,
@@ -332,6 +341,7 @@ impl ReplayReport {
         let pct = |p: f64| percentile(&ms, p);
         let frame_ms = sorted(tracked_times.iter().map(|t| t.total_s * 1e3));
         let map_ms = sorted(out.mapping.job_times_s.iter().map(|t| t * 1e3));
+        let kf_build_ms = sorted(out.mapping.tracker_keyframe_build_s.iter().map(|t| t * 1e3));
         let imu_scale = sorted(out.odometry.imu_scale.iter().map(|e| e.scale));
         let imu_scale_pct = |p: f64| percentile_if_any(&imu_scale, p);
         let view_scale = sorted(out.mapping.view_scales.iter().map(|&s| s as f64));
@@ -416,6 +426,11 @@ impl ReplayReport {
             chain_retracks: out.odometry.chain_retracks,
             keyframes_stored: out.odometry.keyframes_stored,
             spot_turn_keyframes: out.odometry.spot_turn_keyframes,
+            keyframes_built_by_mapper: out.odometry.keyframes_built_by_mapper,
+            keyframes_built_on_tracking_thread: out.odometry.keyframes_built_on_tracking_thread,
+            mapper_keyframe_builds: kf_build_ms.len(),
+            mapper_keyframe_build_ms_p50: percentile_if_any(&kf_build_ms, 50.0),
+            mapper_keyframe_build_ms_max: kf_build_ms.last().copied(),
             aged_keyframes: out.odometry.aged_keyframes,
             returns_out_of_view: out.odometry.returns_out_of_view,
             zero_velocity_updates: out.odometry.zero_velocity_updates,
@@ -698,6 +713,17 @@ impl ReplayReport {
         row(
             "turn keyframes (tracker)",
             self.spot_turn_keyframes.to_string(),
+        );
+        row(
+            "keyframes built by mapper / tracker",
+            format!(
+                "{} / {} ({} built by the mapper, {} ms p50)",
+                self.keyframes_built_by_mapper,
+                self.keyframes_built_on_tracking_thread,
+                self.mapper_keyframe_builds,
+                self.mapper_keyframe_build_ms_p50
+                    .map_or("-".to_string(), |v| format!("{v:.1}"))
+            ),
         );
         row(
             "keyframes at the age limit",

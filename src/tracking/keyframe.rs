@@ -202,9 +202,13 @@ fn build_level(
     let (gx, gy) = pyr.gradients(level);
     let cell = cell_px.max(1);
     let (cw, ch) = (img.width().div_ceil(cell), img.height().div_ceil(cell));
-    // Best point per cell: (gradient², index, u, v).
-    let mut best: Vec<Option<(f32, usize, f32, f32)>> = vec![None; cw * ch];
+    // Per point its pixel and gradient² at this level; per cell the index of its strongest point
+    // (the first of equals), `NONE` for an empty cell.
+    const NONE: u32 = u32::MAX;
+    let mut best = vec![NONE; cw * ch];
+    let mut at: Vec<(f32, f32, f32)> = Vec::with_capacity(distorted.len());
     for (i, xd) in distorted.iter().enumerate() {
+        at.push((f32::NAN, 0.0, 0.0));
         let Some(uv) = xd.map(|xd| cam.pixel_of_distorted(&xd)) else {
             continue;
         };
@@ -216,17 +220,31 @@ fn build_level(
             continue;
         };
         let g2 = dx * dx + dy * dy;
+        at[i] = (g2, u, v);
         let c = (v as usize / cell) * cw + u as usize / cell;
-        if best[c].is_none_or(|b| g2 > b.0) {
-            best[c] = Some((g2, i, u, v));
+        if best[c] == NONE || g2 > at[best[c] as usize].0 {
+            best[c] = i as u32;
         }
     }
-    let mut chosen: Vec<(f32, usize, f32, f32)> = best.into_iter().flatten().collect();
+    // (gradient², index, u, v) of each cell's point, in cell order.
+    let mut chosen: Vec<(f32, usize, f32, f32)> = best
+        .iter()
+        .filter(|&&i| i != NONE)
+        .map(|&i| {
+            let (g2, u, v) = at[i as usize];
+            (g2, i as usize, u, v)
+        })
+        .collect();
     if chosen.len() > max_points {
-        // Keep the strongest, deterministically (ties broken by index).
-        chosen.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        // Keep the strongest, deterministically: under this total order (ties broken by index)
+        // the `max_points` strongest are one set, which a partition finds without sorting all
+        // candidates (a semidense map has several times more than a level keeps).
+        let stronger = |a: &(f32, usize, f32, f32), b: &(f32, usize, f32, f32)| {
+            b.0.total_cmp(&a.0).then(a.1.cmp(&b.1))
+        };
+        chosen.select_nth_unstable_by(max_points - 1, stronger);
         chosen.truncate(max_points);
-        chosen.sort_by_key(|c| c.1);
+        chosen.sort_unstable_by_key(|c| c.1); // (indices are unique)
     }
     let mut out = LevelPoints {
         p_kf_m: Vec::with_capacity(chosen.len()),

@@ -8,7 +8,8 @@ use crate::runtime::guessed_keyframe::{
     GuessSettings, GuessedKeyframeJob, build_guessed_keyframe, depthless_points, median_inv_depth,
 };
 use crate::runtime::keyframe_builder::KeyframeBuilder;
-use crate::runtime::map_keyframe::build;
+use crate::runtime::map_keyframe::{build, take_keyframe};
+use crate::runtime::mapping_worker::{InstallHint, NewKeyframeHint};
 
 impl Odometry {
     pub(super) fn next_seq(&mut self) -> u64 {
@@ -135,6 +136,7 @@ impl Odometry {
             propagate,
             seed,
             inv_depth_range_m_inv: range,
+            hint: self.install_hint(),
         });
     }
 
@@ -174,7 +176,40 @@ impl Odometry {
             ..frame
         };
         let seq = self.next_seq();
-        self.send(MapJob::Observe { seq, frame });
+        let hint = self.install_hint();
+        self.send(MapJob::Observe { seq, frame, hint });
+    }
+
+    /// Which of the mapper's maps [`Self::apply_snapshot`] may install at the next frames, as far
+    /// as this frame can tell (`[bootstrap] mapper_builds_keyframes`): any of the new keyframe
+    /// awaited with enough points (whether one is installed before it has forward views depends
+    /// on how the keyframe tracked fares in the frames until it arrives; the first map in flight,
+    /// whose installation waits for a baseline, is not hinted); a refresh of the keyframe tracked
+    /// once its map has grown past a tenth — whatever the frames since the last refresh, which in
+    /// real time have passed by the time the map arrives.
+    fn install_hint(&self) -> InstallHint {
+        if self.phase != Phase::Tracking || !self.cfg.bootstrap.mapper_builds_keyframes {
+            return InstallHint::default();
+        }
+        let b = &self.cfg.bootstrap;
+        let new = self.pending_kf.map(|id| NewKeyframeHint {
+            id,
+            min_points: b.min_keyframe_points,
+        });
+        let refresh = match (self.pending_kf, self.tracking_kf) {
+            (None, Some(id)) if !self.tracking_kf_adjusted => {
+                let n = self.tracking_kf_points;
+                let above = n + n / 10;
+                let above = if self.tracking_kf_filled {
+                    above.max(b.fill_depthless_below_points.saturating_sub(1))
+                } else {
+                    above
+                };
+                Some((id, above))
+            }
+            _ => None,
+        };
+        InstallHint { new, refresh }
     }
 
     /// Takes the mapper's snapshots: offline, exactly those of the jobs sent at least
@@ -209,7 +244,7 @@ impl Odometry {
             }
         }
         if let Some(s) = latest {
-            self.apply_snapshot(&s);
+            self.apply_snapshot(s);
         }
     }
 
@@ -236,7 +271,8 @@ impl Odometry {
         self.cfg.realtime || self.cfg.keyframe_bundle.lag_frames > 0
     }
 
-    pub(super) fn apply_snapshot(&mut self, s: &MapSnapshot) {
+    pub(super) fn apply_snapshot(&mut self, mut snapshot: MapSnapshot) {
+        let s = &snapshot;
         let is_new = self.pending_kf == Some(s.keyframe_id);
         let is_refresh = self.pending_kf.is_none() && self.tracking_kf == Some(s.keyframe_id);
         if !(is_new || is_refresh) {
@@ -336,13 +372,17 @@ impl Odometry {
         {
             return;
         }
-        let kf = build(
-            s,
-            fill.unwrap_or_default(),
-            self.mapper_from_world.inverse() * s.map.t_world_cam,
-            &self.rays,
-            &self.cfg.tracking,
-        );
+        let pose = self.mapper_from_world.inverse() * s.map.t_world_cam;
+        let (kf, came_built) = match fill {
+            Some(fill) => (build(s, fill, pose, &self.rays, &self.cfg.tracking), false),
+            None => take_keyframe(&mut snapshot, pose, &self.rays, &self.cfg.tracking),
+        };
+        if came_built {
+            self.stats.keyframes_built_by_mapper += 1;
+        } else {
+            self.stats.keyframes_built_on_tracking_thread += 1;
+        }
+        let s = &snapshot;
         if self.phase == Phase::Initializing && self.send_takeoff(&kf, s) {
             return; // the first map will be triangulated again from the refined take-off
         }

@@ -60,8 +60,10 @@ use super::keyframe_bundle::{
     KeyframeBundleConfig, KeyframeRecord, PreviousHost, carry_correction,
 };
 use super::keyframe_store::{KeyframeStore, ReachLimits, ReuseConfig, StoredKeyframe};
+use super::map_keyframe;
 use super::mapping_worker::{
     MapFrame, MapJob, MapSnapshot, MappingOptions, MappingOutput, MappingThread,
+    TrackerKeyframeBuilder,
 };
 use super::refinement_worker::{
     KeyframeJob, ReadyKeyframe, RefineJob, RefineResult, RefineSettings, RefinementThread,
@@ -222,6 +224,11 @@ pub struct BootstrapConfig {
     /// in real time comes 4–8 frames later, when a fast turn has left the keyframe tracked
     /// meanwhile. The mapper's map replaces it once it has `fill_depthless_below_points`.
     pub fill_without_mapper: bool,
+    /// The mapping thread builds the tracker's keyframe of each map the tracking thread says it
+    /// would install next (`mapping_worker::InstallHint`, sent with every view), so that the
+    /// tracking thread installs it without building it (3–6 ms of its frame on a map of 10–20
+    /// thousand points). The same keyframe either way: offline replays do not change.
+    pub mapper_builds_keyframes: bool,
     /// After a static start, the first map's views are re-posed (`takeoff_refinement`) and the
     /// first map triangulated again from them this many times before it is tracked
     /// ([`super::takeoff`]; 0 = the paper's bootstrap by dead reckoning alone).
@@ -373,6 +380,7 @@ impl Default for BootstrapConfig {
             fill_depthless_below_points: 1500,
             fill_max_baseline_ratio: 0.03,
             fill_without_mapper: true,
+            mapper_builds_keyframes: true,
             refine_takeoff_passes: 2,
             takeoff_lag_frames: 0,
             takeoff_max_pass_frames: 30,
@@ -537,6 +545,12 @@ pub struct OdometryStats {
     pub reinit_guessed_keyframes: usize,
     /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
     pub spot_turn_keyframes: usize,
+    /// Mapper maps taken for tracking (or for a take-off refinement pass) whose keyframe the
+    /// mapper had built (`[bootstrap] mapper_builds_keyframes`), and those the tracking thread
+    /// built when it took them (the first map, the depthless fill of a turn on the spot, a hint
+    /// missed, or the option off).
+    pub keyframes_built_by_mapper: usize,
+    pub keyframes_built_on_tracking_thread: usize,
     /// New keyframes started when the keyframe tracked had reached `[tracking]
     /// keyframe_max_age_s` (possibly with another reason as well).
     pub aged_keyframes: usize,
@@ -881,6 +895,14 @@ impl Odometry {
             Matrix15::identity(),
         );
         let detector = StaticDetector::new(cfg.static_detector, &rig.noise);
+        let rays = Arc::new(PixelRays::new(&rig.camera));
+        let tracker_keyframes = (cfg.bootstrap.mapper_builds_keyframes && cfg.tracking.use_vision)
+            .then(|| {
+                let (rays, tracking) = (rays.clone(), cfg.tracking.clone());
+                TrackerKeyframeBuilder(Arc::new(move |s: &MapSnapshot| {
+                    map_keyframe::build(s, Vec::new(), Isometry3::identity(), &rays, &tracking)
+                }))
+            });
         let mapping = MappingThread::spawn(
             cfg.mapping.clone(),
             rig.camera,
@@ -890,9 +912,9 @@ impl Odometry {
                 max_view_backlog: cfg.bootstrap.max_view_backlog,
                 nice_increment: cfg.bootstrap.background_nice,
                 true_view_poses: cfg.mapping_true_view_poses.clone(),
+                tracker_keyframes,
             },
         );
-        let rays = Arc::new(PixelRays::new(&rig.camera));
         let refiner = ((cfg.keyframe_bundle.enabled || cfg.bootstrap.refine_takeoff_passes > 0)
             && cfg.tracking.use_vision)
             .then(|| {

@@ -372,6 +372,7 @@ impl Odometry {
             map.scale_inv_depths(factor);
             let snapshot = MapSnapshot {
                 map: Arc::new(map),
+                tracker_keyframe: None, // (of the map before)
                 ..snapshot.clone()
             };
             self.install_keyframe(a.keyframe, &snapshot, false, false, true);
@@ -498,7 +499,7 @@ impl Odometry {
             if let Some(tk) = self.takeoff.as_mut() {
                 tk.passes = u32::MAX; // no further pass: install it now
             }
-            self.apply_snapshot(snapshot);
+            self.apply_snapshot(snapshot.clone());
             return;
         };
         let Some(mut tk) = self.takeoff.take() else {
