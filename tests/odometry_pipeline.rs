@@ -1073,6 +1073,14 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
     assert!(without.odometry.resets > 0);
     assert!(with.odometry.spot_turn_keyframes > 0);
     assert_eq!(without.odometry.spot_turn_keyframes, 0);
+    // (built between frames by the builder thread, each timed)
+    let builds_s = &with.odometry.spot_turn_build_s;
+    assert!(!builds_s.is_empty());
+    assert!(
+        builds_s.iter().all(|t| t.is_finite() && *t > 0.0),
+        "{builds_s:?}"
+    );
+    assert!(without.odometry.spot_turn_build_s.is_empty());
     // …and the drift of the first lap is not carried on.
     assert!(e_with.ate_rmse_m < e_without.ate_rmse_m);
     assert!(

@@ -92,6 +92,9 @@ pub struct ReplayReport {
     /// Keyframes of turns on the spot made by the tracking thread without waiting for the mapper
     /// (`[bootstrap] fill_without_mapper`).
     pub spot_turn_keyframes: usize,
+    /// Their builds on the builder thread between frames, ms (`None` without any).
+    pub spot_turn_build_ms_p50: Option<f64>,
+    pub spot_turn_build_ms_max: Option<f64>,
     /// Mapper maps taken for tracking (or a take-off refinement pass) whose keyframe the mapping
     /// thread had built (`[bootstrap] mapper_builds_keyframes`), and those the tracking thread
     /// built itself, inside its frame.
@@ -342,6 +345,7 @@ impl ReplayReport {
         let frame_ms = sorted(tracked_times.iter().map(|t| t.total_s * 1e3));
         let map_ms = sorted(out.mapping.job_times_s.iter().map(|t| t * 1e3));
         let kf_build_ms = sorted(out.mapping.tracker_keyframe_build_s.iter().map(|t| t * 1e3));
+        let spot_turn_ms = sorted(out.odometry.spot_turn_build_s.iter().map(|t| t * 1e3));
         let imu_scale = sorted(out.odometry.imu_scale.iter().map(|e| e.scale));
         let imu_scale_pct = |p: f64| percentile_if_any(&imu_scale, p);
         let view_scale = sorted(out.mapping.view_scales.iter().map(|&s| s as f64));
@@ -426,6 +430,8 @@ impl ReplayReport {
             chain_retracks: out.odometry.chain_retracks,
             keyframes_stored: out.odometry.keyframes_stored,
             spot_turn_keyframes: out.odometry.spot_turn_keyframes,
+            spot_turn_build_ms_p50: percentile_if_any(&spot_turn_ms, 50.0),
+            spot_turn_build_ms_max: spot_turn_ms.last().copied(),
             keyframes_built_by_mapper: out.odometry.keyframes_built_by_mapper,
             keyframes_built_on_tracking_thread: out.odometry.keyframes_built_on_tracking_thread,
             mapper_keyframe_builds: kf_build_ms.len(),
@@ -712,7 +718,13 @@ impl ReplayReport {
         );
         row(
             "turn keyframes (tracker)",
-            self.spot_turn_keyframes.to_string(),
+            match (self.spot_turn_build_ms_p50, self.spot_turn_build_ms_max) {
+                (Some(p50), Some(max)) => format!(
+                    "{} (built between frames, ms p50/max {p50:.1} / {max:.1})",
+                    self.spot_turn_keyframes
+                ),
+                _ => self.spot_turn_keyframes.to_string(),
+            },
         );
         row(
             "keyframes built by mapper / tracker",

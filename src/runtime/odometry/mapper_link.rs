@@ -453,6 +453,7 @@ impl Odometry {
             return;
         };
         self.spare_pyramid = Some(done.spare);
+        self.stats.spot_turn_build_s.push(done.time_s);
         if let Some((kf, s)) = done.built
             && self.pending_kf == Some(done.id)
         {

@@ -545,6 +545,8 @@ pub struct OdometryStats {
     pub reinit_guessed_keyframes: usize,
     /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
     pub spot_turn_keyframes: usize,
+    /// Time of each of their builds on the builder thread (`vidslam-kf-build`), s.
+    pub spot_turn_build_s: Vec<f64>,
     /// Mapper maps taken for tracking (or for a take-off refinement pass) whose keyframe the
     /// mapper had built (`[bootstrap] mapper_builds_keyframes`), and those the tracking thread
     /// built when it took them (the first map, the depthless fill of a turn on the spot, a hint
