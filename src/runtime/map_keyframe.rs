@@ -9,7 +9,7 @@
 //! adjusted is now built by the refinement thread, with its adjustment
 //! ([`super::refinement_worker::KeyframeToAdjust`]); the others (the first map, refreshes,
 //! keyframes that cannot wait for an adjustment) here, inline. The result does not depend on
-//! the thread. Since the mapper builds the keyframes of the maps the tracker says it would
+//! the thread. Since the mapper builds the keyframes of the maps the tracker says it may
 //! install next ([`super::mapping_worker::InstallHint`]), most arrive built
 //! ([`MapSnapshot::tracker_keyframe`], [`take_keyframe`]): the build is the same function of the
 //! same map, with the pose set afterwards, so a keyframe is the same wherever it was built.
@@ -53,14 +53,8 @@ pub fn take_keyframe(
     rays: &PixelRays,
     cfg: &TrackerConfig,
 ) -> (Keyframe, bool) {
-    match s.tracker_keyframe.take() {
-        Some(kf) => {
-            let mut kf = Arc::unwrap_or_clone(kf);
-            kf.t_world_cam = t_world_cam;
-            (kf, true)
-        }
-        None => (build(s, Vec::new(), t_world_cam, rays, cfg), false),
-    }
+    let built = s.tracker_keyframe.take().map(Arc::unwrap_or_clone);
+    posed_or_built(s, built, t_world_cam, rays, cfg)
 }
 
 /// [`take_keyframe`] for a snapshot that stays whole (the refinement thread's): the mapper's
@@ -71,13 +65,25 @@ pub fn keyframe_of(
     rays: &PixelRays,
     cfg: &TrackerConfig,
 ) -> Keyframe {
-    match &s.tracker_keyframe {
-        Some(kf) => {
-            let mut kf = Keyframe::clone(kf);
+    let built = s.tracker_keyframe.as_deref().cloned();
+    posed_or_built(s, built, t_world_cam, rays, cfg).0
+}
+
+/// `built` (the mapper's keyframe of `s`, posed at the identity) moved to `t_world_cam`, or the
+/// keyframe of `s` built now; with whether it came built.
+fn posed_or_built(
+    s: &MapSnapshot,
+    built: Option<Keyframe>,
+    t_world_cam: Isometry3<f64>,
+    rays: &PixelRays,
+    cfg: &TrackerConfig,
+) -> (Keyframe, bool) {
+    match built {
+        Some(mut kf) => {
             kf.t_world_cam = t_world_cam;
-            kf
+            (kf, true)
         }
-        None => build(s, Vec::new(), t_world_cam, rays, cfg),
+        None => (build(s, Vec::new(), t_world_cam, rays, cfg), false),
     }
 }
 
