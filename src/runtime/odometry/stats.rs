@@ -1,0 +1,198 @@
+//! The odometry's counters and per-keyframe records for the report (`report.json`, the CSVs),
+//! and the IMU noise measured on the pad.
+
+use super::*;
+
+/// Counters for the report.
+#[derive(Clone, Debug, Default)]
+pub struct OdometryStats {
+    /// Back-dated motion onset of the first take-off.
+    pub onset_t: Option<TimeNs>,
+    /// The IMU's effective white-noise density on the pad before the first take-off (rotor
+    /// vibration included; [`StaticEstimate::gyro_density_rad_s_sqrt_hz`]) and its ratio to the
+    /// rig's `sensor.yaml` density: gyro rad/s/√Hz, accelerometer m/s²/√Hz.
+    pub rest_imu_density: Option<RestImuDensity>,
+    /// Time of the first tracked frame after the onset.
+    pub tracking_since: Option<TimeNs>,
+    pub resets: u32,
+    /// Of `resets`, those that resumed tracking against the keyframe lost (`resume_max_s`).
+    pub resumes: u32,
+    /// Of `resets`, those that relocalised on a stored keyframe (`[bootstrap] relocalise`).
+    pub relocalisations: u32,
+    /// First maps started again in flight that joined the keyframe window across the loss
+    /// (`[window] keep_across_rebuild`) instead of restarting it.
+    pub window_kept_across_rebuild: u32,
+    /// Times the keyframe window restarted at a keyframe in flight (after the bootstrap's first):
+    /// at a loss, a return to a stored keyframe it cannot join, a gap in the buffered IMU, or a
+    /// solution that is not finite.
+    pub window_restarts: u32,
+    /// `[window] gyro_misalignment`: the gyro's turn against the body frame (`ω_body = Exp(φ)
+    /// ω_gyro`) after every window solve, as (newest keyframe's time, φ in rad)
+    /// (`OUT/window_gyro_turn.csv`): how the estimate settles over a flight.
+    pub window_gyro_misalignment_history: Vec<(TimeNs, Vector3<f64>)>,
+    pub keyframes: usize,
+    /// Times the tracker returned to a stored keyframe instead of starting a new one.
+    pub keyframe_reuses: usize,
+    /// Times a stored keyframe lost track right after the tracker returned to it.
+    pub keyframe_reuse_failures: usize,
+    /// Of these, failing frames tracked again on the keyframe left from the chain's state
+    /// (`Odometry::retrack_on_chain`).
+    pub chain_retracks: usize,
+    /// First maps started in flight installed at once with guessed depths (`[bootstrap]
+    /// reinit_guessed_depths`).
+    pub reinit_guessed_keyframes: usize,
+    /// Keyframes of turns on the spot made by the tracking thread (`fill_without_mapper`).
+    pub spot_turn_keyframes: usize,
+    /// Time of each of their builds on the builder thread (`vidslam-kf-build`), s.
+    pub spot_turn_build_s: Vec<f64>,
+    /// Mapper maps taken for tracking (or for a take-off refinement pass) whose keyframe the
+    /// mapper had built (`[bootstrap] mapper_builds_keyframes`), and those the tracking thread
+    /// built when it took them (the first map, the depthless fill of a turn on the spot, a hint
+    /// missed, or the option off).
+    pub keyframes_built_by_mapper: usize,
+    pub keyframes_built_on_tracking_thread: usize,
+    /// New keyframes started when the keyframe tracked had reached `[tracking]
+    /// keyframe_max_age_s` (possibly with another reason as well).
+    pub aged_keyframes: usize,
+    /// Stored keyframes that failed their probation where the keyframe left was out of view
+    /// (`[reuse] return_min_overlap`): a new keyframe was started instead of going back.
+    pub returns_out_of_view: usize,
+    /// Frames whose velocity was set to zero (the vehicle at rest).
+    pub zero_velocity_updates: usize,
+    /// Keyframes stored for returning to them.
+    pub keyframes_stored: usize,
+    /// Scale correction of each applied take-off refinement pass (the take-off's first, then
+    /// those of first maps started in flight).
+    pub takeoff_scales: Vec<f64>,
+    /// Wall time of each applied take-off refinement pass, s.
+    pub takeoff_refinement_s: Vec<f64>,
+    /// Frames each applied take-off refinement pass re-posed (at most `[bootstrap]
+    /// takeoff_max_pass_frames` of the take-off's, evenly spaced).
+    pub takeoff_pass_views: Vec<usize>,
+    /// Frames between sending each applied take-off refinement pass and applying it.
+    pub takeoff_pass_lag_frames: Vec<u64>,
+    /// Take-off refinements and keyframe adjustments not started: their thread was still busy
+    /// (real time).
+    pub refinements_dropped: usize,
+    /// Of those started, the ones whose outcome was not used: superseded by a newer one, or their
+    /// keyframe (first map) no longer tracked (built) when they came back.
+    pub refinements_discarded: usize,
+    /// Frames tracked again against an adjusted keyframe that came back after them.
+    pub catch_up_frames: usize,
+    /// Every keyframe adjustment that came back, in order (`OUT/adjustments.csv`): what each
+    /// changed and what became of it ([`OdometryStats::keyframe_bundle_s`] and the other
+    /// figures per adjustment are read from it).
+    pub adjustments: Vec<AdjustmentRecord>,
+    /// Scale change (new / old depths) of each keyframe tracked with guessed depths and then
+    /// adjusted with its depths free (`[keyframe_bundle] guessed_min_baseline_ratio`).
+    pub guessed_keyframe_scales: Vec<f64>,
+    pub jobs_dropped: usize,
+    /// The map scale measured against the IMU at each new keyframe (`[scale_observer]`).
+    pub imu_scale: Vec<ScaleSample>,
+    /// Wall time of each keyframe-window solve (on the tracking thread), s.
+    pub window_solve_s: Vec<f64>,
+    /// Each window solve's change of the distance from the window's previous newest keyframe
+    /// to the new one (solved / as tracked; baselines over 1 cm): the correction by which the
+    /// IMU's scale reaches the maps, since the mapper's world is chained through it
+    /// (`mapper_from_world`).
+    pub window_baseline_ratios: Vec<f64>,
+    /// With `[window] map_scale`: after each window solve, the estimated log-scale λ of every
+    /// keyframe map in the window, as (keyframe time, λ) (`OUT/window_scale.csv`).
+    pub window_map_log_scales: Vec<(TimeNs, f64)>,
+    /// With `[window] map_scale_gain`: each correction `c` of a keyframe map's log-scale (its
+    /// depths scaled by `e^{−c}` when the next keyframe was started).
+    pub window_map_scale_corrections: Vec<f64>,
+    /// The gyro's axes turned onto the camera's body frame in flight (`[gyro_alignment]`).
+    pub gyro_alignment: GyroAlignmentStats,
+    /// Latency of each new keyframe in flight, frames from the frame that started it: to its
+    /// first map from the mapper, and to its installation for tracking (which also waits for the
+    /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
+    /// offline_lag_frames`; in real time it is what the mapper's speed gives.
+    pub keyframe_map_latency_frames: Vec<u64>,
+    pub keyframe_install_latency_frames: Vec<u64>,
+    /// Images are divided by the rig's vignetting.
+    pub vignette_corrected: bool,
+    /// Pixels clipped at 255 by the vignetting correction (bright texture in the corners).
+    pub vignette_saturated_px: u64,
+}
+
+impl OdometryStats {
+    /// The in-flight keyframe adjustments applied (`[keyframe_bundle]`), in order.
+    fn applied_adjustments(&self) -> impl Iterator<Item = &AdjustmentRecord> {
+        self.adjustments
+            .iter()
+            .filter(|r| r.outcome == AdjustmentOutcome::Applied)
+    }
+
+    /// Wall time of each applied keyframe adjustment on the refinement thread, s.
+    pub fn keyframe_bundle_s(&self) -> Vec<f64> {
+        self.applied_adjustments().map(|r| r.time_s).collect()
+    }
+
+    /// Median relative inverse-depth change of each applied keyframe adjustment.
+    pub fn keyframe_bundle_depth_changes(&self) -> Vec<f64> {
+        self.applied_adjustments().map(|r| r.depth_change).collect()
+    }
+
+    /// Norm of the accelerometer-bias change each applied keyframe adjustment handed to the
+    /// tracker (its estimate from the keyframe's few tenths of a second of views minus the
+    /// tracker's), m/s². The bias should move by its random walk (~0.003 m/s² per √s on the
+    /// EuRoC IMU); jumps of tenths mean the adjustment explains a pose or depth error with it.
+    pub fn keyframe_bundle_accel_bias_jumps_m_s2(&self) -> Vec<f64> {
+        self.applied_adjustments()
+            .map(|r| r.accel_bias_jump_m_s2)
+            .collect()
+    }
+
+    /// Norm of the change of the last view's velocity of each keyframe adjustment that came back
+    /// with a finite result (its adjusted state minus the one tracking had), applied or
+    /// rejected, m/s.
+    pub fn keyframe_bundle_velocity_changes_m_s(&self) -> Vec<f64> {
+        self.adjustments
+            .iter()
+            .filter(|r| {
+                matches!(
+                    r.outcome,
+                    AdjustmentOutcome::Applied | AdjustmentOutcome::Rejected
+                )
+            })
+            .map(|r| r.velocity_change_m_s)
+            .collect()
+    }
+
+    /// Keyframe adjustments not applied because they moved that velocity by more than
+    /// `[keyframe_bundle] max_velocity_change_m_s`.
+    pub fn refinements_rejected(&self) -> usize {
+        self.adjustments
+            .iter()
+            .filter(|r| r.outcome == AdjustmentOutcome::Rejected)
+            .count()
+    }
+
+    /// `[window] gyro_misalignment`: the gyro's turn as the keyframe window last solved it, rad
+    /// (`None` before its first solve, or without the estimate).
+    pub fn window_gyro_misalignment_rad(&self) -> Option<Vector3<f64>> {
+        self.window_gyro_misalignment_history
+            .last()
+            .map(|&(_, phi)| phi)
+    }
+}
+
+/// The IMU's noise measured at rest (see [`OdometryStats::rest_imu_density`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RestImuDensity {
+    pub gyro_rad_s_sqrt_hz: f64,
+    pub accel_m_s2_sqrt_hz: f64,
+    /// Measured over `sensor.yaml`'s density.
+    pub gyro_ratio: f64,
+    pub accel_ratio: f64,
+    /// The scales of `sensor.yaml`'s densities the tracker weights the IMU with from the take-off
+    /// on: the ratios above (at least 1) times `[bootstrap] rest_imu_noise_factor`, or
+    /// `[tracking] imu_noise_scale` for both when that is off.
+    pub gyro_scale: f64,
+    pub accel_scale: f64,
+    /// The factor on the rotation part of the keyframe window's and the keyframe adjustment's
+    /// IMU factors from the take-off on: `gyro_ratio` (at least 1) when `[bootstrap]
+    /// rest_gyro_rotation_noise` is on, else 1.
+    pub rotation_noise_scale: f64,
+}
