@@ -840,7 +840,7 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
     );
     // `frames.csv` carries each frame's split: its header names the columns and every row has
     // them, the whole frame's as measured.
-    let csv = vidslam::runtime::report::frames_csv(&out);
+    let csv = vidslam::runtime::replay_files::frames_csv(&out);
     let mut lines = csv.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap();

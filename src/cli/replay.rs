@@ -6,7 +6,7 @@ use crate::eval::plot_report;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
 use crate::runtime::odometry::adjustments_csv;
 use crate::runtime::replay::StartMode;
-use crate::runtime::report::{frames_csv, write_ply};
+use crate::runtime::replay_files::{frames_csv, write_ply};
 use crate::runtime::scale_observer::imu_scale_csv;
 use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
 use anyhow::Context;

@@ -12,7 +12,9 @@ pub mod mapping_worker;
 pub mod odometry;
 pub mod refinement_worker;
 pub mod replay;
+pub mod replay_files;
 pub mod report;
+mod report_table;
 pub mod scale_observer;
 pub mod takeoff;
 pub mod thread_clock;
@@ -21,4 +23,5 @@ pub mod true_view_poses;
 
 pub use config::Config;
 pub use replay::{DepthSource, Recoveries, ReplayOptions, ReplayOutput, replay};
-pub use report::{ReplayReport, trajectory};
+pub use replay_files::trajectory;
+pub use report::ReplayReport;
