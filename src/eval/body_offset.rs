@@ -16,7 +16,7 @@
 //! on `δw`, since `exp(δw) R_w` turns by `δw` in the world, and `−J_l⁻¹(r_i)` on `δb`). The part of
 //! a body offset about an axis the body never turns about commutes with every pose and is taken
 //! by `R_w`; about an axis it barely turns about (a drone's up axis: it yaws, and tilts by a few
-//! degrees) it is nearly so. Such directions are held at zero ([`hold_weak_body_axes`]), so a
+//! degrees) it is nearly so. Such directions are held at zero (`hold_weak_body_axes`), so a
 //! flight that mostly yaws reports the offset's tilt part and none about the yaw axis.
 
 use crate::geometry::{exp_so3, log_so3, right_jacobian_inv};

@@ -140,7 +140,7 @@ pub struct BundleConfig {
     /// Standard deviation of each inverse depth around its neighbours' median, relative to it.
     pub smoothness_rel_std: f64,
     /// Rescale each host's smoothness targets so that the prior does not pull the map's scale
-    /// (see [`PhotometricBundle::smoothness_targets`]).
+    /// (see `PhotometricBundle::smoothness_targets`).
     pub smoothness_scale_neutral: bool,
     /// Standard deviation of each inverse depth around its given value, relative to it (0 = no
     /// such prior, as at take-off, where the first map's dead-reckoned scale is what is wrong).

@@ -128,7 +128,7 @@ pub struct BootstrapConfig {
     pub mapper_builds_keyframes: bool,
     /// After a static start, the first map's views are re-posed (`takeoff_refinement`) and the
     /// first map triangulated again from them this many times before it is tracked
-    /// ([`super::takeoff`]; 0 = the paper's bootstrap by dead reckoning alone).
+    /// ([`crate::runtime::takeoff`]; 0 = the paper's bootstrap by dead reckoning alone).
     pub refine_takeoff_passes: u32,
     /// A refinement pass, which runs on a thread of its own, is applied this many frames after it
     /// started (0 = before the next frame): offline exactly, in real time at the earliest (later

@@ -1,5 +1,5 @@
 //! V4L2 backend: [`V4l2Camera`] turns buffers from any [`V4l2BufferSource`] into frames. The
-//! real device source ([`device::DeviceSource`], feature `v4l2`) streams mmap buffers from
+//! real device source (`device::DeviceSource`, feature `v4l2`) streams mmap buffers from
 //! `/dev/videoN`; [`recorded::RecordedSource`] plays back buffers recorded from a driver, which
 //! is how the conversion path is tested on machines without V4L2 (no `/dev/video*` here).
 //!
