@@ -392,3 +392,51 @@ fn a_solution_the_imu_contradicts_is_solved_again_with_vision_down_weighted() {
     assert!(!calm.downweighted);
     assert_eq!(calm.state, full.state);
 }
+
+#[test]
+fn a_tracker_that_does_not_estimate_the_gyro_bias_holds_it_and_still_tracks() {
+    // `[tracking] estimate_gyro_bias = false`: every frame's solve leaves the gyro bias where the
+    // state had it (here the start state's, as the replay tracks alone: nothing else estimates
+    // it), to the bit, while the accelerometer bias, the pose and the velocity are still solved
+    // and the flight is tracked as well as with the bias free.
+    let dir = dataset();
+    let mut opts = ReplayOptions {
+        depth: DepthSource::GroundTruth,
+        ..Default::default()
+    };
+    let free = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    opts.tracker.estimate_gyro_bias = false;
+    let held = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let gyro = |r: &vidslam::tracking::TrackResult| r.state.bias.gyro_rad_s;
+    let accel = |r: &vidslam::tracking::TrackResult| r.state.bias.accel_m_s2;
+    assert!(held.frames.iter().all(|r| r.flag.is_none()));
+    let b0 = gyro(&held.frames[0]);
+    assert!(held.frames.iter().all(|r| gyro(r) == b0));
+    assert!(free.frames.iter().any(|r| gyro(r) != gyro(&free.frames[0])));
+    assert!(
+        held.frames
+            .iter()
+            .any(|r| accel(r) != accel(&held.frames[0]))
+    );
+    let gt = AslDataset::open(&dir)
+        .unwrap()
+        .ground_truth()
+        .unwrap()
+        .unwrap();
+    let max_err_m = |t: &vidslam::dataset::Trajectory| {
+        t.poses
+            .iter()
+            .map(|p| {
+                let g = gt.nearest(p.t, 0).unwrap().t_world_body;
+                (g.translation.vector - p.t_world_body.translation.vector).norm()
+            })
+            .fold(0.0f64, f64::max)
+    };
+    let (e_held, e_free) = (max_err_m(&trajectory(&held)), max_err_m(&trajectory(&free)));
+    println!(
+        "3 s replay: max position error {:.1} mm with the gyro bias held, {:.1} mm free",
+        e_held * 1e3,
+        e_free * 1e3
+    );
+    assert!(e_held < 0.02, "{e_held}");
+}

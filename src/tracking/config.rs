@@ -101,6 +101,15 @@ pub struct TrackerConfig {
     /// S-V101, 30 moved its runaways between seeds (median 0.162 → 0.154 m over seeds 1–8) and 100
     /// let the bias take the maps' scale (docs/odometry-log.md, *S-V101's rotation is its maps'*).
     pub gyro_random_walk_scale: f64,
+    /// Estimate the gyro bias in every frame's solve (the 15-state of eq. 11). `false` holds it
+    /// at the state's value through the solve (its step is zero; the IMU residual still weighs
+    /// it): the bias is then what the rest detector and the keyframe window estimate. The
+    /// tracker's photometric information is the single frame's, untempered (the window scales
+    /// it by `visual_rotation_information_scale` for the map errors all pixels share), so in every
+    /// frame it pulls the bias toward whatever rotation error the keyframe's map gives; on
+    /// S-V101 the window and the tracker were measured pulling the bias about the up axis
+    /// against each other (docs/odometry-log.md, *Where S-V101's heading drift enters*).
+    pub estimate_gyro_bias: bool,
     /// Use the images at all (`false` = IMU-only dead reckoning through the same solver).
     pub use_vision: bool,
     /// Divide every image by the camera's vignetting (`cam0/vignette.yaml` of the dataset, see
@@ -153,6 +162,7 @@ impl Default for TrackerConfig {
             keyframe_max_age_s: 0.0,
             imu_noise_scale: 3.0,
             gyro_random_walk_scale: 1.0,
+            estimate_gyro_bias: true,
             use_vision: true,
             correct_vignetting: false,
         }

@@ -558,7 +558,9 @@ impl Tracker {
                 break;
             }
             tries += 1;
-            let Some((dp, di)) = damped(&cur.sys, lambda).solve_schur() else {
+            let Some((dp, di)) =
+                step_system(&cur.sys, lambda, self.cfg.estimate_gyro_bias).solve_schur()
+            else {
                 if lambda == 0.0 {
                     lambda = 1e-4;
                     continue;
@@ -797,9 +799,25 @@ pub fn pose_of(x: &FrameState) -> Isometry3<f64> {
     Isometry3::from_parts(x.nav.p_world_m.into(), x.nav.r_world_body)
 }
 
-/// Levenberg-style damping of the diagonal (`λ = 0`: the paper's plain Gauss-Newton).
-fn damped(sys: &BlockSystem<8, 9>, lambda: f64) -> BlockSystem<8, 9> {
+/// The system a step is solved from: Levenberg-style damping of the diagonal (`λ = 0`: the
+/// paper's plain Gauss-Newton) and, unless `estimate_gyro_bias`, the gyro bias's rows and
+/// columns (`δbω`, rows 3–5 of `δ_I`) replaced by the identity with a zero right-hand side, so
+/// its step is exactly zero and the other unknowns are solved with it held.
+fn step_system(
+    sys: &BlockSystem<8, 9>,
+    lambda: f64,
+    estimate_gyro_bias: bool,
+) -> BlockSystem<8, 9> {
     let mut s = sys.clone();
+    if !estimate_gyro_bias {
+        for k in 3..6 {
+            s.h_ii.row_mut(k).fill(0.0);
+            s.h_ii.column_mut(k).fill(0.0);
+            s.h_pi.column_mut(k).fill(0.0);
+            s.h_ii[(k, k)] = 1.0;
+            s.b_i[k] = 0.0;
+        }
+    }
     if lambda > 0.0 {
         for k in 0..8 {
             s.h_pp[(k, k)] *= 1.0 + lambda;
