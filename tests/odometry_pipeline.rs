@@ -389,6 +389,12 @@ fn refinements_applied_frames_late_keep_replays_identical() {
         !a.odometry.keyframe_bundle_s().is_empty(),
         "no keyframe adjusted"
     );
+    // The keyframe window solved, and each solve's time is in the frame that triggered it.
+    assert!(!a.odometry.window_solve_s.is_empty());
+    assert_eq!(
+        a.frame_times.iter().filter(|f| f.window_s > 0.0).count(),
+        a.odometry.window_solve_s.len()
+    );
     assert_eq!(
         a.odometry.keyframe_bundle_s().len(),
         b.odometry.keyframe_bundle_s().len()
@@ -824,7 +830,13 @@ fn realtime_mode_paces_frames_and_never_waits_for_the_mapper() {
             .iter()
             .all(|f| f.cpu_s.is_some_and(|c| c <= f.total_s + 1e-4))
     );
-    assert!(out.frame_times.iter().any(|f| f.window_s > 0.0));
+    // Every keyframe-window solve's time is in the frame that triggered it (whether the window
+    // solves within 4.5 s depends on the machine in real time; offline it is checked in
+    // `refinements_applied_frames_late_keep_replays_identical`).
+    assert_eq!(
+        out.frame_times.iter().filter(|f| f.window_s > 0.0).count(),
+        out.odometry.window_solve_s.len()
+    );
     // The tracking thread ran at its real-time priority, or the replay says why not (the
     // default asks for one).
     match out.tracking_fifo.as_ref().expect("real time reports it") {
