@@ -122,6 +122,17 @@ fn track_from(
     )
 }
 
+/// The largest distance of `t`'s positions from the ground truth's at the same times, m.
+fn max_position_error_m(gt: &GroundTruth, t: &vidslam::dataset::Trajectory) -> f64 {
+    t.poses
+        .iter()
+        .map(|p| {
+            let g = gt.nearest(p.t, 0).unwrap().t_world_body;
+            (g.translation.vector - p.t_world_body.translation.vector).norm()
+        })
+        .fold(0.0f64, f64::max)
+}
+
 fn perturbed(x: &FrameState, dp_m: Vector3<f64>, drot_rad: Vector3<f64>) -> FrameState {
     let mut y = *x;
     y.nav.p_world_m += dp_m;
@@ -251,14 +262,7 @@ fn short_replay_is_accurate_deterministic_and_better_than_the_imu_alone() {
         .ground_truth()
         .unwrap()
         .unwrap();
-    let err = |t: &vidslam::dataset::Trajectory| {
-        let mut max = 0.0f64;
-        for p in &t.poses {
-            let g = gt.nearest(p.t, 0).unwrap().t_world_body;
-            max = max.max((g.translation.vector - p.t_world_body.translation.vector).norm());
-        }
-        max
-    };
+    let err = |t: &vidslam::dataset::Trajectory| max_position_error_m(&gt, t);
     let mut no_vision = opts.clone();
     no_vision.tracker.use_vision = false;
     let c = replay(&dir, &no_vision, &mut |_, _| {}).unwrap();
@@ -423,15 +427,7 @@ fn a_tracker_that_does_not_estimate_the_gyro_bias_holds_it_and_still_tracks() {
         .ground_truth()
         .unwrap()
         .unwrap();
-    let max_err_m = |t: &vidslam::dataset::Trajectory| {
-        t.poses
-            .iter()
-            .map(|p| {
-                let g = gt.nearest(p.t, 0).unwrap().t_world_body;
-                (g.translation.vector - p.t_world_body.translation.vector).norm()
-            })
-            .fold(0.0f64, f64::max)
-    };
+    let max_err_m = |t: &vidslam::dataset::Trajectory| max_position_error_m(&gt, t);
     let (e_held, e_free) = (max_err_m(&trajectory(&held)), max_err_m(&trajectory(&free)));
     println!(
         "3 s replay: max position error {:.1} mm with the gyro bias held, {:.1} mm free",
