@@ -422,6 +422,24 @@ fn a_tracker_that_does_not_estimate_the_gyro_bias_holds_it_and_still_tracks() {
             .iter()
             .any(|r| accel(r) != accel(&held.frames[0]))
     );
+    // Its covariance is the prediction's: only the random walk widens it, frame after frame,
+    // and nothing ties it to the rest; free, the images narrow it.
+    let bias_var = |r: &vidslam::tracking::TrackResult| r.covariance[(9, 9)];
+    assert!(
+        held.frames
+            .windows(2)
+            .all(|w| bias_var(&w[1]) > bias_var(&w[0]))
+    );
+    assert!(held.frames.iter().all(|r| {
+        (0..15)
+            .filter(|k| !(9..12).contains(k))
+            .all(|k| r.covariance[(9, k)] == 0.0)
+    }));
+    assert!(
+        free.frames
+            .windows(2)
+            .any(|w| bias_var(&w[1]) < bias_var(&w[0]))
+    );
     let gt = AslDataset::open(&dir)
         .unwrap()
         .ground_truth()

@@ -524,7 +524,12 @@ impl Tracker {
         }
         res.photometric_info = pose_information(&fin.h_ph);
         res.photometric_step = photometric_step(&fin.h_ph, &fin.b_ph);
-        let Some(cov) = marginal_covariance(&fin.sys) else {
+        let cov = if self.cfg.estimate_gyro_bias {
+            marginal_covariance(&fin.sys)
+        } else {
+            held_gyro_bias_covariance(&fin.sys, a_imu)
+        };
+        let Some(cov) = cov else {
             res.flag = Some(FlagReason::SolverFailed);
             return None;
         };
@@ -878,6 +883,21 @@ fn marginal_covariance(sys: &BlockSystem<8, 9>) -> Option<Matrix15> {
     // 17-index of each 15-state entry: θ,t = 0..6; v, bω, ba = 8..17.
     let idx = |k: usize| if k < 6 { k } else { k + 2 };
     let cov = Matrix15::from_fn(|a, b| inv[(idx(a), idx(b))]);
+    cov.iter().all(|v| v.is_finite()).then_some(cov)
+}
+
+/// The covariance of a solution whose gyro bias was held (`estimate_gyro_bias = false`): the
+/// other unknowns' from the system with the bias's rows and columns taken out (their covariance
+/// given the bias, as the step was solved), the bias's the prediction's (`a_imu⁻¹`, the prior
+/// and the random walk of eq. 9–10: the images did not move it, so they must not narrow it),
+/// uncorrelated with the rest.
+fn held_gyro_bias_covariance(sys: &BlockSystem<8, 9>, a_imu: &Matrix15) -> Option<Matrix15> {
+    let mut cov = marginal_covariance(&step_system(sys, 0.0, false))?;
+    let predicted = a_imu.cholesky()?.inverse();
+    let bg = block::BG;
+    // The held system is block-diagonal in the bias, so its inverse has exact zeros beside it.
+    cov.fixed_view_mut::<3, 3>(bg, bg)
+        .copy_from(&predicted.fixed_view::<3, 3>(bg, bg));
     cov.iter().all(|v| v.is_finite()).then_some(cov)
 }
 
