@@ -89,6 +89,12 @@ fn replay_writes_trajectory_report_csv_and_plot() {
     assert_eq!(rep["frames_in"], 90);
     assert_eq!(rep["frames_flagged"], 0);
     assert!(rep["ate_rmse_m"].as_f64().unwrap() < 0.02, "{rep}");
+    // 4.5 s of flight is one 10 s segment of the same alignment: its ATE is the whole run's.
+    let segs = rep["error_per_10s"].as_array().expect("error_per_10s");
+    assert_eq!(segs.len(), 1, "{rep}");
+    assert_eq!(segs[0]["poses"], rep["matched_poses"]);
+    let seg_ate = segs[0]["ate_rmse_m"].as_f64().unwrap();
+    assert!((seg_ate - rep["ate_rmse_m"].as_f64().unwrap()).abs() < 1e-12);
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
     assert_eq!(csv.lines().count(), 91);
     // The accelerometer bias: estimated, implied by the ground truth (two 2 s windows of the

@@ -36,7 +36,9 @@ pub struct EvalArgs {
     pub plot: Option<PathBuf>,
     /// Also print the ATE RMSE of each time segment these cut times (s since the first matched
     /// pose, increasing, comma-separated) divide the run into, under the one alignment — e.g. the
-    /// built-in demo's phases from `1.5,4.5,32.5,35.5` (idle, take-off, laps, hover turn, landing).
+    /// built-in demo's phases from `1.5,4.5,32.5,35.5` (idle, take-off, laps, hover turn, landing)
+    /// — with its mean heading error (about the ground truth world's z axis) and RMS tilt error
+    /// once the constant world rotation and body offset are removed, degrees.
     #[arg(long, value_name = "S,S,...", value_delimiter = ',')]
     pub segments_s: Vec<f64>,
 }

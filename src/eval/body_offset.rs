@@ -29,6 +29,44 @@ pub struct BodyOffset {
     pub body_rotation_rad: Vector3<f64>,
     /// RMS angle of `(R_w R_gt,i R_b)ᵀ R_est,i`: the rotation error the two rotations leave, rad.
     pub residual_rmse_rad: f64,
+    /// Rotation vector of `R_w`, in the ground truth's world, rad.
+    pub world_rotation_rad: Vector3<f64>,
+}
+
+/// The rotation error one pose has left after the fit (`R_est,i = Exp(φ_i) R_w R_gt,i R_b`, `φ_i`
+/// in the ground truth's world), split into its part about the world's z axis — the heading,
+/// signed, up in EuRoC's and the simulator's worlds, which gravity does not observe — and the
+/// rest, the tilt, rad.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AttitudeError {
+    pub heading_rad: f64,
+    pub tilt_rad: f64,
+}
+
+/// The [`AttitudeError`] of every pose pair under `offset` (fitted by [`body_offset`] on the same
+/// pairs): where a heading drifts and where it is corrected, with the constant parts removed.
+///
+/// # Panics
+/// If the slices differ in length.
+pub fn attitude_errors(
+    gt: &[Isometry3<f64>],
+    est: &[Isometry3<f64>],
+    offset: &BodyOffset,
+) -> Vec<AttitudeError> {
+    assert_eq!(gt.len(), est.len(), "one pose pair per time");
+    let r_w = exp_so3(&offset.world_rotation_rad);
+    let r_b = exp_so3(&offset.body_rotation_rad);
+    gt.iter()
+        .zip(est)
+        .map(|(g, e)| {
+            let a = r_w * g.rotation.to_rotation_matrix().matrix() * r_b;
+            let phi = a * log_so3(&(a.transpose() * e.rotation.to_rotation_matrix().matrix()));
+            AttitudeError {
+                heading_rad: phi.z,
+                tilt_rad: phi.xy().norm(),
+            }
+        })
+        .collect()
 }
 
 /// Information of the prior on `log R_b` per pose, 1/rad²: a millionth of what one pose tells
@@ -79,13 +117,16 @@ pub fn body_offset(gt: &[Isometry3<f64>], est: &[Isometry3<f64>]) -> Option<Body
     let out = BodyOffset {
         body_rotation_rad: log_so3(&with_body.r_b),
         residual_rmse_rad: with_body.rmse_rad,
+        world_rotation_rad: log_so3(&with_body.r_w),
     };
-    let finite =
-        out.body_rotation_rad.iter().all(|v| v.is_finite()) && out.residual_rmse_rad.is_finite();
+    let finite = out.body_rotation_rad.iter().all(|v| v.is_finite())
+        && out.world_rotation_rad.iter().all(|v| v.is_finite())
+        && out.residual_rmse_rad.is_finite();
     finite.then_some(out)
 }
 
 struct Fit {
+    r_w: Matrix3<f64>,
     r_b: Matrix3<f64>,
     rmse_rad: f64,
 }
@@ -142,6 +183,7 @@ fn fit(r_gt: &[Matrix3<f64>], r_est: &[Matrix3<f64>], body: bool) -> Fit {
         .map(|(rg, re)| log_so3(&((r_w * rg * r_b).transpose() * re)).norm_squared())
         .sum();
     Fit {
+        r_w,
         r_b,
         rmse_rad: (sq / n).sqrt(),
     }
@@ -279,6 +321,51 @@ mod tests {
         assert!(
             world_only_rmse_rad(&gt, &est) > 0.2 * body.norm(),
             "{off:?}"
+        );
+    }
+
+    #[test]
+    fn attitude_errors_follow_a_heading_drift_and_a_tilt_apart_from_the_offsets() {
+        // A heading that drifts linearly by 2° over the flight, on top of a world rotation and a
+        // body offset, and a tilt of 0.5° about world x in the middle fifth.
+        let gt = attitudes(400);
+        let body = Vector3::new(0.004, -0.002, 0.035);
+        let drift_rad = |i: usize| 0.035 * i as f64 / 399.0;
+        let tilt_rad = |i: usize| if (160..240).contains(&i) { 0.0087 } else { 0.0 };
+        let est: Vec<_> = turned(&gt, Vector3::new(0.1, -0.3, 1.2), body)
+            .into_iter()
+            .enumerate()
+            .map(|(i, mut p)| {
+                let d = UnitQuaternion::from_scaled_axis(
+                    Vector3::z() * drift_rad(i) + Vector3::x() * tilt_rad(i),
+                );
+                p.rotation = d * p.rotation;
+                p
+            })
+            .collect();
+        let off = body_offset(&gt, &est).unwrap();
+        let err = attitude_errors(&gt, &est, &off);
+        assert_eq!(err.len(), gt.len());
+        // The world rotation takes the drift's mean (1°), so the heading error runs from −1° to
+        // +1°; the fitted offsets take a little of it (here up to 0.08°).
+        for (i, e) in err.iter().enumerate() {
+            let want = drift_rad(i) - 0.0175;
+            assert!((e.heading_rad - want).abs() < 2e-3, "{i}: {e:?} vs {want}");
+        }
+        // The tilt stands out where it was made (the offsets take a part of it: 0.27° of the
+        // 0.5° is left there, 0.11° elsewhere).
+        let mean_tilt =
+            |e: &[AttitudeError]| e.iter().map(|e| e.tilt_rad).sum::<f64>() / e.len() as f64;
+        let outside: Vec<_> = err[..160].iter().chain(&err[240..]).copied().collect();
+        let (mid, out) = (mean_tilt(&err[160..240]), mean_tilt(&outside));
+        assert!(mid > 0.004 && mid > 2.0 * out, "{mid} {out}");
+        // Without the drift and the tilt nothing is left.
+        let clean = turned(&gt, Vector3::new(0.1, -0.3, 1.2), body);
+        let off = body_offset(&gt, &clean).unwrap();
+        let err = attitude_errors(&gt, &clean, &off);
+        assert!(
+            err.iter()
+                .all(|e| e.heading_rad.abs() < 1e-6 && e.tilt_rad < 1e-6)
         );
     }
 

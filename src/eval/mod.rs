@@ -206,17 +206,25 @@ pub fn evaluate(
         .collect();
 
     let t0: TimeNs = pairs[0].t;
+    let offset = body_offset::body_offset(&gt_poses, &est_aligned);
+    let attitude = offset.map(|o| body_offset::attitude_errors(&gt_poses, &est_aligned, &o));
     let per_pose = pairs
         .iter()
         .zip(&est_aligned)
         .zip(abs.trans_m.iter().zip(&abs.rot_deg))
-        .map(|((p, e), (&trans_m, &rot_deg))| PoseError {
-            t: p.t,
-            time_s: p.t.secs_since(t0),
-            p_world_gt_m: p.t_world_body_gt.translation.vector,
-            p_world_est_m: e.translation.vector,
-            ate_m: trans_m,
-            rot_err_deg: rot_deg,
+        .enumerate()
+        .map(|(i, ((p, e), (&trans_m, &rot_deg)))| {
+            let att = attitude.as_ref().map(|a| a[i]);
+            PoseError {
+                t: p.t,
+                time_s: p.t.secs_since(t0),
+                p_world_gt_m: p.t_world_body_gt.translation.vector,
+                p_world_est_m: e.translation.vector,
+                ate_m: trans_m,
+                rot_err_deg: rot_deg,
+                heading_err_deg: att.map(|a| a.heading_rad.to_degrees()),
+                tilt_err_deg: att.map(|a| a.tilt_rad.to_degrees()),
+            }
         })
         .collect();
 
@@ -229,7 +237,7 @@ pub fn evaluate(
         absolute: &abs,
         rpe_1m: &rpe[0],
         rpe_10m: &rpe[1],
-        body_offset: body_offset::body_offset(&gt_poses, &est_aligned),
+        body_offset: offset,
         per_pose,
     }))
 }

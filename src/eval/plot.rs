@@ -265,6 +265,8 @@ mod tests {
                     p_world_est_m: Vector3::new(a.cos() + 0.05, a.sin(), 1.0),
                     ate_m: 0.05 + 0.001 * i as f64,
                     rot_err_deg: 1.0,
+                    heading_err_deg: None,
+                    tilt_err_deg: None,
                 }
             })
             .collect();

@@ -83,10 +83,15 @@ pub struct PoseError {
     pub p_world_est_m: Vector3<f64>,
     pub ate_m: f64,
     pub rot_err_deg: f64,
+    /// The rotation error left after the world rotation and the body offset
+    /// ([`super::body_offset::attitude_errors`]): about the world's z axis (signed) and about
+    /// horizontal axes, degrees; `None` when no body offset could be fitted.
+    pub heading_err_deg: Option<f64>,
+    pub tilt_err_deg: Option<f64>,
 }
 
-/// The ATE over one time segment of a run ([`EvalReport::segment_errors`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// The errors over one time segment of a run ([`EvalReport::segment_errors`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SegmentError {
     /// Start and end of the segment, s since the first matched pose.
     pub from_s: f64,
@@ -95,14 +100,23 @@ pub struct SegmentError {
     pub poses: usize,
     /// ATE RMSE of those poses, m (`None` without any).
     pub ate_rmse_m: Option<f64>,
+    /// Mean of their signed heading errors and RMS of their tilt errors ([`PoseError`]),
+    /// degrees (`None` without poses or without a body-offset fit).
+    pub heading_mean_deg: Option<f64>,
+    pub tilt_rms_deg: Option<f64>,
 }
 
 impl SegmentError {
-    /// One table row: `ATE 5.0–33.0 s [m]   0.012345 (560 poses)`.
+    /// One table row: `ATE 5.0–33.0 s [m]   0.012345 (560 poses)`, then the heading and tilt
+    /// when known: `  heading -0.52° tilt 0.31°`.
     pub fn to_row(&self) -> String {
         let label = format!("ATE {:.1}-{:.1} s [m]", self.from_s, self.to_s);
+        let attitude = match (self.heading_mean_deg, self.tilt_rms_deg) {
+            (Some(h), Some(t)) => format!("  heading {h:+.2}° tilt {t:.2}°"),
+            _ => String::new(),
+        };
         match self.ate_rmse_m {
-            Some(e) => format!("{label:<24} {e:.6} ({} poses)\n", self.poses),
+            Some(e) => format!("{label:<24} {e:.6} ({} poses){attitude}\n", self.poses),
             None => format!("{label:<24} n/a (no poses)\n"),
         }
     }
@@ -185,17 +199,24 @@ impl EvalReport {
         bounds
             .windows(2)
             .map(|w| {
-                let e: Vec<f64> = self
+                let in_segment: Vec<&PoseError> = self
                     .per_pose
                     .iter()
                     .filter(|p| p.time_s >= w[0] && p.time_s < w[1])
-                    .map(|p| p.ate_m)
                     .collect();
+                let e: Vec<f64> = in_segment.iter().map(|p| p.ate_m).collect();
+                let heading: Option<Vec<f64>> =
+                    in_segment.iter().map(|p| p.heading_err_deg).collect();
+                let tilt: Option<Vec<f64>> = in_segment.iter().map(|p| p.tilt_err_deg).collect();
                 SegmentError {
                     from_s: w[0],
                     to_s: w[1].min(self.duration_s),
                     poses: e.len(),
                     ate_rmse_m: ErrorStats::of(&e).map(|s| s.rmse),
+                    heading_mean_deg: heading
+                        .filter(|h| !h.is_empty())
+                        .map(|h| h.iter().sum::<f64>() / h.len() as f64),
+                    tilt_rms_deg: tilt.and_then(|t| ErrorStats::of(&t)).map(|s| s.rmse),
                 }
             })
             .collect()
@@ -325,6 +346,7 @@ mod tests {
             body_offset: Some(BodyOffset {
                 body_rotation_rad: Vector3::new(0.0, 0.0, 0.02f64.to_radians()),
                 residual_rmse_rad: 0.5f64.to_radians(),
+                world_rotation_rad: Vector3::zeros(),
             }),
             // Ground truth along x at 0, 1, 3 m, at 0, 1, 2 s: 3 m travelled in 2 s.
             per_pose: [0.0, 1.0, 3.0]
@@ -337,6 +359,8 @@ mod tests {
                     p_world_est_m: Vector3::zeros(),
                     ate_m: 0.0,
                     rot_err_deg: 0.0,
+                    heading_err_deg: Some(0.0),
+                    tilt_err_deg: Some(0.0),
                 })
                 .collect(),
         })
@@ -348,15 +372,33 @@ mod tests {
         for (p, e) in r.per_pose.iter_mut().zip([0.3, 0.4, 0.1]) {
             p.ate_m = e;
         }
+        for (p, (h, t)) in r
+            .per_pose
+            .iter_mut()
+            .zip([(0.5, 0.2), (-1.5, 0.4), (2.0, 0.1)])
+        {
+            (p.heading_err_deg, p.tilt_err_deg) = (Some(h), Some(t));
+        }
         let segs = r.segment_errors(&[1.5, 5.0]);
         assert_eq!(segs.len(), 3);
         assert_eq!((segs[0].from_s, segs[0].to_s, segs[0].poses), (0.0, 1.5, 2));
         assert!((segs[0].ate_rmse_m.unwrap() - 0.125f64.sqrt()).abs() < 1e-12);
+        assert!((segs[0].heading_mean_deg.unwrap() + 0.5).abs() < 1e-12);
+        assert!((segs[0].tilt_rms_deg.unwrap() - 0.1f64.sqrt()).abs() < 1e-12);
+        assert!(
+            segs[0].to_row().ends_with("heading -0.50° tilt 0.32°\n"),
+            "{}",
+            segs[0].to_row()
+        );
         assert_eq!((segs[1].from_s, segs[1].to_s, segs[1].poses), (1.5, 2.0, 1));
         assert!((segs[1].ate_rmse_m.unwrap() - 0.1).abs() < 1e-12);
         // Past the last pose: empty, ends at the run's end.
         assert_eq!((segs[2].from_s, segs[2].to_s, segs[2].poses), (5.0, 2.0, 0));
         assert_eq!(segs[2].ate_rmse_m, None);
+        assert_eq!(
+            (segs[2].heading_mean_deg, segs[2].tilt_rms_deg),
+            (None, None)
+        );
         assert!(
             segs[0].to_row().starts_with("ATE 0.0-1.5 s [m]"),
             "{}",

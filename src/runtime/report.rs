@@ -7,7 +7,7 @@ use super::replay::ReplayOutput;
 use crate::dataset::{GroundTruth, Trajectory};
 use crate::eval::stats::{percentile, sorted};
 use crate::eval::velocity::velocity_errors;
-use crate::eval::{EvalOptions, EvalReport, alignment, evaluate};
+use crate::eval::{EvalOptions, EvalReport, SegmentError, alignment, evaluate};
 use crate::tracking::{TrackResult, pose_of};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -289,6 +289,11 @@ pub struct ReplayReport {
     pub map_depth_worst_within_10pct: Option<f64>,
     /// Sim3 scale error and SE3 ATE of the trajectory up to every 10 s (from the first pose).
     pub scale_error_over_time: Vec<ScaleAt>,
+    /// The whole run's SE3 alignment cut into 10 s segments: each one's ATE RMSE, mean signed
+    /// heading error and RMS tilt error once the constant world and body rotations are removed
+    /// ([`crate::eval::SegmentError`]) — where the heading drifts and where the position
+    /// follows it.
+    pub error_per_10s: Vec<SegmentError>,
     /// Norm of the error of the velocity the odometry outputs (what ODOMETRY #331 sends), against
     /// the ground truth's recorded velocity, after the SE3 alignment of the poses
     /// ([`crate::eval::velocity`]), m/s; `None` when the ground truth has no velocity column.
@@ -563,6 +568,7 @@ impl ReplayReport {
             map_depth_abs_median_pct: None,
             map_depth_worst_within_10pct: None,
             scale_error_over_time: Vec::new(),
+            error_per_10s: Vec::new(),
             velocity_rmse_m_s: None,
             velocity_median_m_s: None,
             velocity_p90_m_s: None,
@@ -645,6 +651,13 @@ impl ReplayReport {
     /// error and ATE of the trajectory up to every 10 s.
     pub fn evaluate_against(&mut self, gt: &Trajectory, est: &Trajectory) {
         self.eval = evaluate(gt, est, &EvalOptions::default()).ok();
+        self.error_per_10s = self.eval.as_ref().map_or_else(Vec::new, |e| {
+            let cuts_s: Vec<f64> = (1..)
+                .map(|k| 10.0 * k as f64)
+                .take_while(|&c| c < e.duration_s)
+                .collect();
+            e.segment_errors(&cuts_s)
+        });
         self.scale_error_over_time.clear();
         let Some((t0, t1)) = est.span() else { return };
         let mut t = 10.0;
