@@ -108,7 +108,9 @@ pub struct TrackerConfig {
     /// it by `visual_rotation_information_scale` for the map errors all pixels share), so in every
     /// frame it pulls the bias toward whatever rotation error the keyframe's map gives; on
     /// S-V101 the window and the tracker were measured pulling the bias about the up axis
-    /// against each other (docs/odometry-log.md, *Where S-V101's heading drift enters*).
+    /// against each other (docs/odometry-log.md, *Where S-V101's heading drift enters*). Held,
+    /// the covariance handed to the next frame keeps the prediction's gyro-bias block. Off by
+    /// default: S-V101 seeds 1–10 better on 7, two lost (*The held gyro bias's covariance*).
     pub estimate_gyro_bias: bool,
     /// Use the images at all (`false` = IMU-only dead reckoning through the same solver).
     pub use_vision: bool,
