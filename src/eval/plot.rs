@@ -1,4 +1,5 @@
-//! PNG plot of an evaluation: top view of both trajectories and the ATE over time.
+//! PNG plot of an evaluation: top view of both trajectories, and the ATE and the heading error
+//! over time.
 //!
 //! Text is rendered by plotters' pure-Rust `ab_glyph` backend with DejaVu Sans embedded from the
 //! `dejavu` crate, so no system font library (fontconfig/freetype) is needed.
@@ -14,6 +15,7 @@ const WIDTH_PX: u32 = 1600;
 const HEIGHT_PX: u32 = 760;
 const GT_COLOR: RGBColor = RGBColor(30, 90, 200);
 const EST_COLOR: RGBColor = RGBColor(220, 60, 30);
+const HEADING_COLOR: RGBColor = RGBColor(30, 150, 70);
 
 /// Why a plot could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -78,7 +80,8 @@ fn decimate(
 
 /// Draws `report`'s per-pose data to a PNG at `png_path`: left, the top view (x-y, m, equal axes)
 /// of the ground truth and the aligned estimate; right, the ATE (m) against time since the first
-/// matched pose (s). The title carries the headline figures.
+/// matched pose (s) and, on a second axis, the heading error (deg, [`super::PoseError`]) when it
+/// is known. The title carries the headline figures.
 pub fn plot_report(report: &EvalReport, png_path: &Path) -> Result<(), PlotError> {
     if report.per_pose.is_empty() {
         return Err(PlotError::Empty {
@@ -177,13 +180,32 @@ pub fn plot_report(report: &EvalReport, png_path: &Path) -> Result<(), PlotError
 
     let t_end_s = report.per_pose.last().map_or(0.0, |p| p.time_s).max(1e-3);
     let ate_top_m = (report.ate_max_m * 1.1).max(1e-6);
+    // The heading error on a second axis, when the body offset could be fitted.
+    let heading: Option<Vec<(f64, f64)>> = report
+        .per_pose
+        .iter()
+        .map(|p| p.heading_err_deg.map(|h| (p.time_s, h)))
+        .collect();
+    let (h0, h1) = heading.as_ref().map_or((-1.0, 1.0), |h| {
+        let top = h.iter().fold(0.0f64, |m, p| m.max(p.1.abs())).max(0.1) * 1.1;
+        (-top, top)
+    });
     let mut ate = ChartBuilder::on(&right)
-        .caption("absolute trajectory error over time", ("sans-serif", 22))
+        .caption(
+            if heading.is_some() {
+                "absolute trajectory error and heading error over time"
+            } else {
+                "absolute trajectory error over time"
+            },
+            ("sans-serif", 22),
+        )
         .margin(margin_px)
         .x_label_area_size(x_label_px)
         .y_label_area_size(y_label_px)
+        .right_y_label_area_size(if heading.is_some() { y_label_px } else { 0 })
         .build_cartesian_2d(0.0..t_end_s, 0.0..ate_top_m)
-        .map_err(|e| draw_err(&e))?;
+        .map_err(|e| draw_err(&e))?
+        .set_secondary_coord(0.0..t_end_s, h0..h1);
     ate.configure_mesh()
         .x_desc("time since first matched pose [s]")
         .y_desc("ATE [m]")
@@ -212,6 +234,22 @@ pub fn plot_report(report: &EvalReport, png_path: &Path) -> Result<(), PlotError
     .map_err(|e| draw_err(&e))?
     .label(format!("RMSE {rmse_m:.4} m"))
     .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+    if let Some(h) = heading {
+        ate.configure_secondary_axes()
+            .y_desc("heading error [deg]")
+            .label_style(("sans-serif", 16))
+            .axis_desc_style(("sans-serif", 18))
+            .draw()
+            .map_err(|e| draw_err(&e))?;
+        let deg_per_px = (h1 - h0) / f64::from(ate_h_px.max(1));
+        let series = decimate(h.into_iter(), s_per_px, s_per_px / deg_per_px);
+        ate.draw_secondary_series(LineSeries::new(series, HEADING_COLOR.stroke_width(1)))
+            .map_err(|e| draw_err(&e))?
+            .label("heading error (world z, offsets removed)")
+            .legend(|(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], HEADING_COLOR.stroke_width(3))
+            });
+    }
     ate.configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
         .label_font(("sans-serif", 16))
@@ -274,6 +312,21 @@ mod tests {
         plot_report(&report_with(per_pose.clone()), &png).unwrap();
         let bytes = std::fs::read(&png).unwrap();
         assert_eq!(png_size(&bytes), (WIDTH_PX, HEIGHT_PX));
+
+        // With heading errors: the second axis and its series are drawn into the same frame.
+        let with_heading: Vec<PoseError> = per_pose
+            .iter()
+            .map(|p| PoseError {
+                heading_err_deg: Some(2.0 * (p.time_s * 3.0).sin()),
+                tilt_err_deg: Some(0.3),
+                ..*p
+            })
+            .collect();
+        let png_h = dir.join("eval-heading.png");
+        plot_report(&report_with(with_heading), &png_h).unwrap();
+        let bytes_h = std::fs::read(&png_h).unwrap();
+        assert_eq!(png_size(&bytes_h), (WIDTH_PX, HEIGHT_PX));
+        assert_ne!(bytes_h, bytes);
 
         let err = plot_report(&report_with(vec![]), &png).unwrap_err();
         assert!(matches!(err, PlotError::Empty { .. }), "{err}");
