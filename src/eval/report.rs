@@ -213,9 +213,7 @@ impl EvalReport {
                     to_s: w[1].min(self.duration_s),
                     poses: e.len(),
                     ate_rmse_m: ErrorStats::of(&e).map(|s| s.rmse),
-                    heading_mean_deg: heading
-                        .filter(|h| !h.is_empty())
-                        .map(|h| h.iter().sum::<f64>() / h.len() as f64),
+                    heading_mean_deg: heading.and_then(|h| ErrorStats::of(&h)).map(|s| s.mean),
                     tilt_rms_deg: tilt.and_then(|t| ErrorStats::of(&t)).map(|s| s.rmse),
                 }
             })
