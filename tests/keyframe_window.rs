@@ -594,16 +594,32 @@ fn preintegrate_wandering_gyro(
 /// relative poses at the production window's weight) with a wandering gyro; returns the worst
 /// tilt error (deg) and velocity error (m/s) of the newest keyframe over the last 40 solves.
 fn run_wandering_gyro(imu_rotation_noise_factor: f64) -> (f64, f64) {
-    let sp = flight();
-    let mut w = window_with(WindowConfig {
+    let (tilt, v, _) = run_wandering_gyro_with(WindowConfig {
         imu_rotation_noise_factor,
         ..WindowConfig::default()
     });
+    (tilt, v)
+}
+
+/// The heading error of `x` against the truth `t`: its rotation error about the world vertical,
+/// deg.
+fn heading_err_deg(x: &FrameState, t: &FrameState) -> f64 {
+    (x.nav.r_world_body * t.nav.r_world_body.inverse())
+        .scaled_axis()
+        .z
+        .to_degrees()
+}
+
+/// As [`run_wandering_gyro`] with the window's settings `cfg`; also the worst heading error of
+/// the newest keyframe over the last 40 solves, deg.
+fn run_wandering_gyro_with(cfg: WindowConfig) -> (f64, f64, f64) {
+    let sp = flight();
+    let mut w = window_with(cfg);
     let t0 = sp.start().add_ns(5_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());
     let (mut prev_true, mut prev_est) = (x0, x0);
-    let (mut worst_tilt, mut worst_v) = (0.0f64, 0.0f64);
+    let (mut worst_tilt, mut worst_v, mut worst_heading) = (0.0f64, 0.0f64, 0.0f64);
     for k in 1..=80u32 {
         let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
         let xt = truth(&sp, t);
@@ -620,9 +636,10 @@ fn run_wandering_gyro(imu_rotation_noise_factor: f64) -> (f64, f64) {
         if k > 40 {
             worst_tilt = worst_tilt.max(tilt_err_deg(&prev_est, &xt));
             worst_v = worst_v.max((prev_est.nav.v_world_m_s - xt.nav.v_world_m_s).norm());
+            worst_heading = worst_heading.max(heading_err_deg(&prev_est, &xt).abs());
         }
     }
-    (worst_tilt, worst_v)
+    (worst_tilt, worst_v, worst_heading)
 }
 
 #[test]
@@ -636,4 +653,38 @@ fn a_wandering_gyro_weighed_by_its_wander_leaves_the_attitude_to_the_relative_po
     println!("tilt {tilt_1:.3}° → {tilt_5:.3}°, velocity {v_1:.4} → {v_5:.4} m/s");
     assert!(tilt_5 < 0.5 * tilt_1, "tilt {tilt_5}° against {tilt_1}°");
     assert!(v_5 < 0.5 * v_1, "velocity {v_5} m/s against {v_1} m/s");
+}
+
+#[test]
+fn a_window_that_holds_the_heading_leaves_it_to_the_relative_poses() {
+    // The gyro wanders by 0.2°/s against exact relative poses: free, the window turns its
+    // keyframes about the vertical with the gyro; with `hold_heading` each keyframe keeps the
+    // heading the relative pose chained it to, and its tilt and velocity are still corrected.
+    let free = run_wandering_gyro_with(WindowConfig::default());
+    let held = run_wandering_gyro_with(WindowConfig {
+        hold_heading: true,
+        ..WindowConfig::default()
+    });
+    println!(
+        "heading {:.4}° → {:.4}°, tilt {:.3}° → {:.3}°, velocity {:.4} → {:.4} m/s",
+        free.2, held.2, free.0, held.0, free.1, held.1
+    );
+    assert!(
+        held.2 < 0.2 * free.2,
+        "heading {}° against {}°",
+        held.2,
+        free.2
+    );
+    assert!(
+        held.0 <= free.0 * 1.1,
+        "tilt {}° against {}°",
+        held.0,
+        free.0
+    );
+    assert!(
+        held.1 <= free.1 * 1.1,
+        "velocity {} against {} m/s",
+        held.1,
+        free.1
+    );
 }

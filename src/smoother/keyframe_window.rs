@@ -37,7 +37,7 @@ use crate::imu::{
     imu_residual_covariance, residual::imu_jacobian_i,
 };
 use crate::time::TimeNs;
-use nalgebra::{DMatrix, DVector, Isometry3, SMatrix, SVector, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, SMatrix, SVector, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::ops::AddAssign;
@@ -127,6 +127,19 @@ pub struct WindowConfig {
     /// A loss longer than this (s, last keyframe to the new map) restarts the window anyway:
     /// the IMU alone over it no longer says much about the velocity.
     pub keep_across_rebuild_max_s: f64,
+    /// The window does not turn its keyframes about the world's vertical: every step of a solve
+    /// leaves each keyframe's heading where tracking (or a return to a stored keyframe) put it,
+    /// while tilt, position, velocity, biases, the maps' scales and the gyro's turn stay free.
+    /// Heading is not observable from the IMU (eq. 13 holds under any rotation about gravity),
+    /// so in the window it is set by the gyro's rotation factors against the tempered relative
+    /// poses, and a gyro that wanders against the camera (S-V101's real one, docs/odometry-log.md,
+    /// *The real gyro's error against the truth's rates, regressed*) turns the keyframes with it:
+    /// held, the gyro's disagreement with the tracked headings goes into its bias instead.
+    /// A diagnostic, off: it tells the window's part of a heading drift, but the tracked
+    /// headings drift as far on their own (S-V101 seeds 1–10 median 0.139 → 0.162 m, the
+    /// built-in demo lost on 2 of 8 seeds; docs/odometry-log.md, *The keyframe window's
+    /// headings held at the tracked ones*).
+    pub hold_heading: bool,
 }
 
 impl Default for WindowConfig {
@@ -153,6 +166,7 @@ impl Default for WindowConfig {
             gyro_misalignment_keep_information: true,
             map_scale_rebuilt_std: 0.5,
             keep_across_rebuild_max_s: 5.0,
+            hold_heading: false,
         }
     }
 }
@@ -496,15 +510,26 @@ impl KeyframeWindow {
         let n = x.states.len();
         let b = self.block();
         for _ in 0..self.cfg.max_iterations {
-            let mut hd = h.clone();
+            // With `hold_heading` the step is solved in coordinates whose rotation rows are, per
+            // keyframe, two axes across the world vertical and one along it (in the body frame of
+            // `boxplus`'s right increment), the vertical one held at zero.
+            let basis = self.cfg.hold_heading.then(|| heading_basis(&x.states, b));
+            let (mut hd, rhs_s) = match &basis {
+                Some(q) => held_heading_system(&h, &rhs, q),
+                None => (h.clone(), rhs.clone()),
+            };
             for k in 0..hd.nrows() {
                 hd[(k, k)] *= 1.0 + lambda;
                 hd[(k, k)] += 1e-12;
             }
             let dx = if self.cfg.envelope_factorisation {
-                EnvelopeCholesky::factor(&hd).map(|c| c.solve(&rhs))
+                EnvelopeCholesky::factor(&hd).map(|c| c.solve(&rhs_s))
             } else {
-                hd.cholesky().map(|c| c.solve(&rhs))
+                hd.cholesky().map(|c| c.solve(&rhs_s))
+            };
+            let dx = match (dx, &basis) {
+                (Some(du), Some(q)) => Some(from_heading_basis(du, q)),
+                (dx, _) => dx,
             };
             let Some(dx) = dx else {
                 lambda *= 10.0;
@@ -754,6 +779,67 @@ impl KeyframeWindow {
 /// Schur-complements the first `m` unknowns out of the system `(h, rhs)`: the information
 /// (symmetrised) and right-hand side left on the others. `None` if the `m` block, regularised by
 /// 1e-9 on its diagonal, is not positive definite.
+/// For `hold_heading`: an orthonormal change of the step's coordinates, `δ = Q u`, identity but
+/// for each keyframe's rotation rows (at `b · k`), which it turns by the returned `T_k`: with the
+/// right increment of [`FrameState::boxplus`] a keyframe at `R` turns about the world vertical by
+/// `(Rᵀ e_z)ᵀ δθ`, so `T_k`'s third column is `Rᵀ e_z` and its first two complete it. The third
+/// coordinate of each is the one held.
+fn heading_basis(states: &[FrameState], b: usize) -> Vec<(usize, Matrix3<f64>)> {
+    states
+        .iter()
+        .enumerate()
+        .map(|(k, x)| {
+            let up = x.nav.r_world_body.inverse() * Vector3::z();
+            // Any axis not along `up` starts the completion.
+            let seed = if up.x.abs() < 0.9 {
+                Vector3::x()
+            } else {
+                Vector3::y()
+            };
+            let a1 = (seed - up * up.dot(&seed)).normalize();
+            let a2 = up.cross(&a1);
+            (b * k, Matrix3::from_columns(&[a1, a2, up]))
+        })
+        .collect()
+}
+
+/// `Qᵀ H Q` and `Qᵀ rhs` for the `Q` of [`heading_basis`], with each held coordinate's row and
+/// column cleared (a unit diagonal and a zero right-hand side, so its step is zero).
+fn held_heading_system(
+    h: &DMatrix<f64>,
+    rhs: &DVector<f64>,
+    basis: &[(usize, Matrix3<f64>)],
+) -> (DMatrix<f64>, DVector<f64>) {
+    let (mut hq, mut rq) = (h.clone(), rhs.clone());
+    for (r, t) in basis {
+        let cols = hq.fixed_columns::<3>(*r) * t;
+        hq.fixed_columns_mut::<3>(*r).copy_from(&cols);
+    }
+    for (r, t) in basis {
+        let rows = t.transpose() * hq.fixed_rows::<3>(*r);
+        hq.fixed_rows_mut::<3>(*r).copy_from(&rows);
+        let v: Vector3<f64> = t.transpose() * rq.fixed_rows::<3>(*r);
+        rq.fixed_rows_mut::<3>(*r).copy_from(&v);
+    }
+    for (r, _) in basis {
+        let i = r + 2;
+        hq.row_mut(i).fill(0.0);
+        hq.column_mut(i).fill(0.0);
+        hq[(i, i)] = 1.0;
+        rq[i] = 0.0;
+    }
+    (hq, rq)
+}
+
+/// `Q u` for the `Q` of [`heading_basis`].
+fn from_heading_basis(mut u: DVector<f64>, basis: &[(usize, Matrix3<f64>)]) -> DVector<f64> {
+    for (r, t) in basis {
+        let v: Vector3<f64> = t * u.fixed_rows::<3>(*r);
+        u.fixed_rows_mut::<3>(*r).copy_from(&v);
+    }
+    u
+}
+
 fn schur_complement(
     h: &DMatrix<f64>,
     rhs: &DVector<f64>,
