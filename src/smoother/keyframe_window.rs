@@ -776,9 +776,6 @@ impl KeyframeWindow {
     }
 }
 
-/// Schur-complements the first `m` unknowns out of the system `(h, rhs)`: the information
-/// (symmetrised) and right-hand side left on the others. `None` if the `m` block, regularised by
-/// 1e-9 on its diagonal, is not positive definite.
 /// For `hold_heading`: an orthonormal change of the step's coordinates, `δ = Q u`, identity but
 /// for each keyframe's rotation rows (at `b · k`), which it turns by the returned `T_k`: with the
 /// right increment of [`FrameState::boxplus`] a keyframe at `R` turns about the world vertical by
@@ -840,6 +837,9 @@ fn from_heading_basis(mut u: DVector<f64>, basis: &[(usize, Matrix3<f64>)]) -> D
     u
 }
 
+/// Schur-complements the first `m` unknowns out of the system `(h, rhs)`: the information
+/// (symmetrised) and right-hand side left on the others. `None` if the `m` block, regularised by
+/// 1e-9 on its diagonal, is not positive definite.
 fn schur_complement(
     h: &DMatrix<f64>,
     rhs: &DVector<f64>,
@@ -907,4 +907,52 @@ fn add_pair<const R: usize>(
     h.view_mut((oj, oi), (15, 15)).add_assign(&hij.transpose());
     rhs.rows_mut(oi, 15).add_assign(&(-(ji.transpose() * wr)));
     rhs.rows_mut(oj, 15).add_assign(&(-(jj.transpose() * wr)));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::UnitQuaternion;
+
+    /// The held step is the minimiser of `½ δᵀ H δ − rhsᵀ δ` among the steps that turn no
+    /// keyframe about the world vertical: checked against the same system with that turn
+    /// penalised by a weight far above `H`'s.
+    #[test]
+    fn the_held_step_is_the_constrained_minimiser() {
+        let b = 16;
+        let states: Vec<FrameState> = [(0.3, -0.2, 1.0), (-0.1, 0.4, -2.0)]
+            .iter()
+            .map(|&(x, y, z)| FrameState {
+                nav: crate::imu::NavState {
+                    t: TimeNs(0),
+                    r_world_body: UnitQuaternion::from_scaled_axis(Vector3::new(x, y, z)),
+                    p_world_m: Vector3::zeros(),
+                    v_world_m_s: Vector3::zeros(),
+                },
+                bias: Default::default(),
+            })
+            .collect();
+        let n = b * states.len() + 3;
+        let a = DMatrix::<f64>::from_fn(n, n, |i, j| ((i * 7 + j * 13) % 11) as f64 - 5.0);
+        let h = &a * a.transpose() + DMatrix::<f64>::identity(n, n);
+        let rhs = DVector::<f64>::from_fn(n, |i, _| ((i * 5) % 7) as f64 - 3.0);
+
+        let basis = heading_basis(&states, b);
+        let (hq, rq) = held_heading_system(&h, &rhs, &basis);
+        let held = from_heading_basis(hq.cholesky().unwrap().solve(&rq), &basis);
+
+        let mut penalised = h.clone();
+        for (k, x) in states.iter().enumerate() {
+            let up = x.nav.r_world_body.inverse() * Vector3::z();
+            let mut v = DVector::<f64>::zeros(n);
+            v.fixed_rows_mut::<3>(b * k).copy_from(&up);
+            penalised += 1e9 * &v * v.transpose();
+            // The held step turns the keyframe about the vertical by nothing.
+            let turn = up.dot(&held.fixed_rows::<3>(b * k));
+            assert!(turn.abs() < 1e-12, "keyframe {k} turned by {turn}");
+        }
+        let reference = penalised.cholesky().unwrap().solve(&rhs);
+        let err = (&held - &reference).amax() / reference.amax();
+        assert!(err < 1e-6, "relative difference {err}");
+    }
 }
