@@ -2,7 +2,7 @@
 //!
 //! Layers, each importing only from the ones before it in this list:
 //! `time`, `geometry` → `image` → `camera`, `imu` → `smoother`, `dataset` → `eval`, `sim` → `tracking`,
-//! `mapping` → `runtime`, `output` → `cli` (the driver crates under `drivers/` sit below all of them).
+//! `mapping` → `loop_closure` → `runtime`, `output` → `cli` (the driver crates under `drivers/` sit below all of them).
 //! Frame and naming conventions are documented once in [`geometry`].
 
 pub mod camera;
@@ -12,6 +12,7 @@ pub mod eval;
 pub mod geometry;
 pub mod image;
 pub mod imu;
+pub mod loop_closure;
 pub mod mapping;
 pub mod output;
 pub mod runtime;

@@ -948,7 +948,7 @@ fn ideal_flight() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| simulate_ideal("flight", None)).clone()
 }
-const IDEAL_FLIGHT_USERS: usize = 2;
+const IDEAL_FLIGHT_USERS: usize = 3;
 fn done_with_ideal_flight(dir: &std::path::Path) {
     static DONE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
     if DONE.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1 == IDEAL_FLIGHT_USERS {
@@ -1134,6 +1134,61 @@ fn the_landing_after_the_turn_on_the_spot_takes_the_imu_scale() {
     );
     assert!((ratio - 1.0).abs() < 0.03, "descent {ratio} x the truth");
     assert!(out.frames.iter().all(|r| r.state.is_finite()));
+    done_with_ideal_flight(&dir);
+}
+
+/// `[loop_closure]` on the laps of the built-in flight: loops close to the first lap's keyframes,
+/// and the published pose is the odometry's moved by a rotation about the vertical and a
+/// translation — the odometry itself (tracking, maps, window) is untouched by it: without loop
+/// closure the replay's poses are those with it, moved back by the correction at each frame.
+#[test]
+fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
+    let dir = ideal_flight();
+    let plain = replay(&dir, &ReplayOptions::default(), &mut |_, _| {}).unwrap();
+    let mut opts = ReplayOptions::default();
+    opts.loop_closure.enabled = true;
+    let closed = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let (e_plain, e_closed) = (
+        eval_against_truth(&dir, &plain),
+        eval_against_truth(&dir, &closed),
+    );
+    let stats = closed
+        .odometry
+        .loop_closure
+        .clone()
+        .expect("loop closure stats");
+    println!(
+        "ATE without / with loop closure {:.2} / {:.2} cm; {stats:?}",
+        e_plain.ate_rmse_m * 100.0,
+        e_closed.ate_rmse_m * 100.0
+    );
+    assert!(plain.odometry.loop_closure.is_none());
+    assert!(stats.loops_closed > 0, "{stats:?}");
+    assert_eq!(plain.frames.len(), closed.frames.len());
+    let mut moved = 0;
+    for (a, b) in plain.frames.iter().zip(&closed.frames) {
+        assert!(b.state.is_finite());
+        let (pa, pb) = (pose_of(&a.state), pose_of(&b.state));
+        // pb = C · pa with C a rotation about world z and a translation.
+        let c = pb * pa.inverse();
+        let axis_tilt = c
+            .rotation
+            .axis()
+            .map_or(0.0, |ax| ax.into_inner().xy().norm());
+        assert!(
+            axis_tilt < 1e-6 || c.rotation.angle() < 1e-9,
+            "a correction that is not about the vertical: {c}"
+        );
+        // Roll and pitch (the direction of the world's vertical in the body) unchanged.
+        let up_a = pa.rotation.inverse() * nalgebra::Vector3::z();
+        let up_b = pb.rotation.inverse() * nalgebra::Vector3::z();
+        assert!((up_a - up_b).norm() < 1e-9);
+        assert_eq!(a.t, b.t);
+        if c.translation.vector.norm() > 1e-6 || c.rotation.angle() > 1e-6 {
+            moved += 1;
+        }
+    }
+    assert!(moved > 0, "no published pose was corrected");
     done_with_ideal_flight(&dir);
 }
 

@@ -135,6 +135,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         keyframe_bundle: cfg.keyframe_bundle.clone(),
         scale_observer: cfg.scale_observer,
         gyro_alignment: cfg.gyro_alignment.clone(),
+        loop_closure: cfg.loop_closure.clone(),
         depth: match a.depth {
             DepthArg::Gt => DepthSource::GroundTruth,
             DepthArg::Semidense => DepthSource::Semidense,

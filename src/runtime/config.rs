@@ -7,6 +7,7 @@ use super::odometry::BootstrapConfig;
 use super::scale_observer::ScaleObserverConfig;
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::static_init::StaticDetectorConfig;
+use crate::loop_closure::closer::LoopClosureConfig;
 use crate::mapping::semidense::SemidenseConfig;
 use crate::smoother::WindowConfig;
 use crate::tracking::TrackerConfig;
@@ -36,6 +37,8 @@ pub struct Config {
     /// `[gyro_alignment]`: the rotation between the gyro's axes and the camera's body frame,
     /// estimated in flight.
     pub gyro_alignment: GyroAlignmentConfig,
+    /// `[loop_closure]`: the drift taken out of the published pose at places mapped before.
+    pub loop_closure: LoopClosureConfig,
 }
 
 #[derive(Debug, thiserror::Error)]

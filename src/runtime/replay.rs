@@ -19,6 +19,7 @@ use crate::dataset::{AslDataset, DatasetError, FrameRecord, GroundTruth, read_im
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::static_init::StaticDetectorConfig;
 use crate::imu::{FrameState, ImuBias, ImuSample, Matrix15, NavState, Preintegration};
+use crate::loop_closure::closer::LoopClosureConfig;
 use crate::mapping::semidense::SemidenseConfig;
 use crate::smoother::WindowConfig;
 use crate::time::TimeNs;
@@ -60,6 +61,7 @@ pub struct ReplayOptions {
     pub keyframe_bundle: KeyframeBundleConfig,
     pub scale_observer: ScaleObserverConfig,
     pub gyro_alignment: GyroAlignmentConfig,
+    pub loop_closure: LoopClosureConfig,
     pub depth: DepthSource,
     /// Diagnostic of the full odometry: the mapper's views posed by the ground truth's motion
     /// from their keyframe ([`super::true_view_poses`]; needs the dataset's ground truth).
@@ -129,6 +131,7 @@ impl Default for ReplayOptions {
             keyframe_bundle: KeyframeBundleConfig::default(),
             scale_observer: ScaleObserverConfig::default(),
             gyro_alignment: GyroAlignmentConfig::default(),
+            loop_closure: LoopClosureConfig::default(),
             depth: DepthSource::Semidense,
             mapping_true_view_poses: false,
             start: StartMode::Static,
@@ -311,6 +314,7 @@ fn replay_full(
         keyframe_bundle: opts.keyframe_bundle.clone(),
         scale_observer: opts.scale_observer,
         gyro_alignment: opts.gyro_alignment.clone(),
+        loop_closure: opts.loop_closure.clone(),
         realtime: opts.realtime,
         mapping_true_view_poses: true_view_poses,
     };

@@ -8,6 +8,7 @@ use crate::dataset::{GroundTruth, Trajectory};
 use crate::eval::stats::{percentile, sorted};
 use crate::eval::velocity::velocity_errors;
 use crate::eval::{EvalOptions, EvalReport, SegmentError, alignment, evaluate};
+use crate::loop_closure::closer::LoopClosureStats;
 use crate::tracking::{TrackResult, pose_of};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -328,6 +329,10 @@ pub struct ReplayReport {
     /// window estimated it at the end (`log` of `ω_body = R ω_gyro`), degrees.
     #[serde(default)]
     pub window_gyro_misalignment_deg: Option<[f64; 3]>,
+    /// `[loop_closure]`: keyframes seen, candidates tried, loops closed and rejected, and the
+    /// correction of the published pose at the end (m, rad); absent when it is off.
+    #[serde(default)]
+    pub loop_closure: Option<LoopClosureStats>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -587,6 +592,7 @@ impl ReplayReport {
                 .odometry
                 .window_gyro_misalignment_rad()
                 .map(|v| [v.x, v.y, v.z].map(f64::to_degrees)),
+            loop_closure: out.odometry.loop_closure.clone(),
             gyro_alignment_deg: g.applied_rad.map(f64::to_degrees),
             gyro_alignment_estimate_deg: g.estimate_rad.map(|v| v.map(f64::to_degrees)),
             gyro_alignment_std_deg: g.estimate_std_rad.map(|v| v.map(f64::to_degrees)),

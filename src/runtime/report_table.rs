@@ -192,6 +192,28 @@ impl ReplayReport {
             ),
         );
         row("window restarts", self.window_restarts.to_string());
+        if let Some(l) = &self.loop_closure {
+            row(
+                "loop closures",
+                format!(
+                    "{} closed of {} candidates ({} implausible, {} held wrong by the graph); \
+                     correction at the end {:.3} m, {:.2}°; {:.1} ms mean / {:.1} ms max per \
+                     keyframe{}",
+                    l.loops_closed,
+                    l.candidates_tried,
+                    l.loops_implausible,
+                    l.loops_rejected_by_graph,
+                    l.final_correction_m,
+                    l.final_correction_rad.to_degrees(),
+                    l.keyframe_ms_mean,
+                    l.keyframe_ms_max,
+                    match l.jobs_dropped {
+                        0 => String::new(),
+                        n => format!(", {n} jobs dropped"),
+                    }
+                ),
+            );
+        }
         if self.recovery_s_max.is_some() || self.unrecovered_s.is_some() {
             let longest = self
                 .recovery_s_max

@@ -83,6 +83,7 @@ use crate::imu::static_init::{
     StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent, rest_covariance,
 };
 use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, NavState, Preintegration};
+use crate::loop_closure::closer::LoopClosureConfig;
 use crate::mapping::semidense::{SemidenseConfig, SemidenseMap};
 use crate::smoother::photometric_bundle::BundleConfig;
 use crate::smoother::{KeyframeWindow, RelativePose, WindowConfig};
@@ -99,6 +100,7 @@ mod adjustment_log;
 mod bootstrap_config;
 mod gyro_link;
 mod keyframe_returns;
+mod loop_link;
 mod mapper_link;
 mod refinement_jobs;
 mod stats;
@@ -108,6 +110,7 @@ pub use adjustment_log::{AdjustmentOutcome, AdjustmentRecord, adjustments_csv};
 pub use bootstrap_config::{BootstrapConfig, TakeoffRefinement};
 pub use gyro_link::GyroAlignmentStats;
 use gyro_link::GyroLink;
+use loop_link::LoopLink;
 pub use stats::{OdometryStats, RestImuDensity};
 
 /// Static frames remembered to pick the first keyframe before the back-dated motion onset.
@@ -145,6 +148,9 @@ pub struct OdometryFrame {
     pub valid: bool,
     /// Incremented at every re-initialisation after a loss (MAVLink `reset_counter`).
     pub resets: u32,
+    /// Incremented whenever the loop closer's correction of the published pose changed (the
+    /// pose jumps: MAVLink `reset_counter` counts these too).
+    pub loop_corrections: u32,
     /// The tracking thread's wall time on this frame and where it went.
     pub times: FrameTimes,
 }
@@ -206,6 +212,8 @@ pub struct OdometryConfig {
     pub scale_observer: ScaleObserverConfig,
     /// `[gyro_alignment]` ([`crate::imu::gyro_alignment`]).
     pub gyro_alignment: GyroAlignmentConfig,
+    /// `[loop_closure]` ([`crate::loop_closure`]).
+    pub loop_closure: LoopClosureConfig,
     /// Real-time mode: never wait for the mapper (non-deterministic).
     pub realtime: bool,
     /// Diagnostic: the mapper triangulates from the true motion from each keyframe
@@ -344,6 +352,9 @@ pub struct Odometry {
     tracked_frames: VecDeque<(MapFrame, FrameState)>,
     /// The image of the keyframe tracked against.
     tracking_kf_image: Option<Arc<Image<u8>>>,
+    /// The loop closer (`[loop_closure] enabled`), fed with every new keyframe and every map
+    /// left; its correction is applied to the published pose only.
+    loop_closer: Option<LoopLink>,
     /// The tracking keyframe's depths come from the keyframe adjustment (or will, once it is
     /// back): the mapper's refreshes of it are not installed.
     tracking_kf_adjusted: bool,
@@ -507,6 +518,10 @@ impl Odometry {
             kf_record: None,
             tracked_frames: VecDeque::new(),
             tracking_kf_image: None,
+            loop_closer: cfg
+                .loop_closure
+                .enabled
+                .then(|| LoopLink::new(&cfg.loop_closure, rig.camera, cfg.realtime)),
             tracking_kf_adjusted: false,
             guessed: None,
             guessed_snapshot: None,
@@ -588,6 +603,16 @@ impl Odometry {
         let cpu_started = thread_cpu_time_s();
         self.times = FrameTimes::default();
         let mut f = self.process_frame(t, image);
+        if let Some(link) = &mut self.loop_closer {
+            let c = link.correction();
+            if f.valid {
+                f.result.state = f.result.state.moved_by_world(&c);
+            }
+            f.loop_corrections = link.corrections;
+            let mut st = link.stats();
+            st.jobs_dropped = link.jobs_dropped;
+            self.stats.loop_closure = Some(st);
+        }
         self.times.total_s = started.elapsed().as_secs_f64();
         self.times.cpu_s = cpu_started
             .zip(thread_cpu_time_s())
@@ -628,6 +653,7 @@ impl Odometry {
                     phase: Phase::WaitingForStart,
                     valid: false,
                     resets: self.stats.resets,
+                    loop_corrections: 0,
                     times: FrameTimes::default(),
                 };
             }
@@ -927,6 +953,7 @@ impl Odometry {
             phase: self.phase,
             valid: true,
             resets: self.stats.resets,
+            loop_corrections: 0,
             times: FrameTimes::default(),
         }
     }

@@ -2,6 +2,7 @@
 //! and the IMU noise measured on the pad.
 
 use super::*;
+use crate::loop_closure::closer::LoopClosureStats;
 
 /// Counters for the report.
 #[derive(Clone, Debug, Default)]
@@ -104,6 +105,8 @@ pub struct OdometryStats {
     pub window_map_scale_corrections: Vec<f64>,
     /// The gyro's axes turned onto the camera's body frame in flight (`[gyro_alignment]`).
     pub gyro_alignment: GyroAlignmentStats,
+    /// The loop closer's counters (`[loop_closure] enabled`).
+    pub loop_closure: Option<LoopClosureStats>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
