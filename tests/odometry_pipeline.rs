@@ -1189,6 +1189,14 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
         }
     }
     assert!(moved > 0, "no published pose was corrected");
+    // The published pose jumps only where a loop was closed (a keyframe without one carries its
+    // host's correction, which is no jump).
+    assert!(
+        stats.published_jumps >= 1 && stats.published_jumps as usize <= stats.loops_closed,
+        "{} jumps for {} loops",
+        stats.published_jumps,
+        stats.loops_closed
+    );
     done_with_ideal_flight(&dir);
 }
 

@@ -138,6 +138,9 @@ pub struct LoopClosureStats {
     pub final_correction_rad: f64,
     /// Jobs the odometry dropped because the loop closer's queue was full (real time).
     pub jobs_dropped: usize,
+    /// Times the published pose jumped by a new correction (the odometry's count; MAVLink
+    /// `reset_counter` must count them).
+    pub published_jumps: u32,
     /// Time per new keyframe (corners, search, graph solve), ms: mean and max.
     pub keyframe_ms_mean: f64,
     pub keyframe_ms_max: f64,

@@ -19,6 +19,11 @@ use std::sync::Arc;
 /// Jobs queued for the loop closer's thread.
 const QUEUE_LEN: usize = 16;
 
+/// A correction that moves the published pose by less than these (m, rad) is not a jump: a new
+/// keyframe without a loop carries its host's correction, equal to it but for rounding.
+const JUMP_M: f64 = 1e-4;
+const JUMP_RAD: f64 = 1e-5;
+
 enum LoopJob {
     Keyframe {
         id: u32,
@@ -123,14 +128,19 @@ impl LoopLink {
         }
     }
 
-    /// A correction from the closer, taken if it is finite and differs from the current one.
+    /// A correction from the closer, taken if it is finite; counted as a jump if it moves the
+    /// published pose by more than [`JUMP_M`] or [`JUMP_RAD`].
     fn take(&mut self, c: Isometry3<f64>) {
         let finite = c.translation.vector.iter().all(|x| x.is_finite())
             && c.rotation.coords.iter().all(|x| x.is_finite());
-        if finite && c != self.correction {
-            self.correction = c;
+        if !finite {
+            return;
+        }
+        let d = self.correction.inverse() * c;
+        if d.translation.vector.norm() > JUMP_M || d.rotation.angle() > JUMP_RAD {
             self.corrections += 1;
         }
+        self.correction = c;
     }
 
     /// The newest correction of the odometry's world (reports of the thread taken in).

@@ -611,6 +611,7 @@ impl Odometry {
             f.loop_corrections = link.corrections;
             let mut st = link.stats();
             st.jobs_dropped = link.jobs_dropped;
+            st.published_jumps = link.corrections;
             self.stats.loop_closure = Some(st);
         }
         self.times.total_s = started.elapsed().as_secs_f64();
