@@ -30,6 +30,12 @@ pub fn increment(xi: &Vector6<f64>) -> Isometry3<f64> {
     )
 }
 
+/// Every number of `t` (translation and quaternion) is finite.
+pub fn is_finite(t: &Isometry3<f64>) -> bool {
+    t.translation.vector.iter().all(|v| v.is_finite())
+        && t.rotation.coords.iter().all(|v| v.is_finite())
+}
+
 /// `T ⊞ ξ = T · (Exp(ω), v)`.
 pub fn boxplus_se3(t: &Isometry3<f64>, xi: &Vector6<f64>) -> Isometry3<f64> {
     t * increment(xi)

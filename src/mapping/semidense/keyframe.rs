@@ -7,6 +7,7 @@ use super::fusion::{
 use super::search::{KeyframePixel, Outcome, PATCH, ViewContext, search_pixel, template};
 use super::{MapPoint, ObserveStats, SemidenseConfig, SemidenseMap, ViewSkip};
 use crate::camera::CameraModel;
+use crate::geometry::se3;
 use crate::image::Image;
 use nalgebra::{Isometry3, Matrix2, Point3, Vector2};
 use rayon::prelude::*;
@@ -145,11 +146,6 @@ pub struct SemidenseKeyframe {
     ratios: Vec<f32>,
 }
 
-fn isometry_is_finite(t: &Isometry3<f64>) -> bool {
-    t.translation.vector.iter().all(|v| v.is_finite())
-        && t.rotation.coords.iter().all(|v| v.is_finite())
-}
-
 fn camera_is_usable(c: &CameraModel) -> bool {
     [c.fx, c.fy, c.cx, c.cy].iter().all(|v| v.is_finite()) && c.fx > 0.0 && c.fy > 0.0
 }
@@ -170,7 +166,7 @@ impl SemidenseKeyframe {
         } else {
             None
         };
-        let valid = footprint.is_some() && isometry_is_finite(t_world_cam);
+        let valid = footprint.is_some() && se3::is_finite(t_world_cam);
         let mut kf = SemidenseKeyframe {
             cfg: cfg.clone(),
             camera: *camera,
@@ -358,7 +354,7 @@ impl SemidenseKeyframe {
     /// Returns the number of candidates that received a prior.
     pub fn propagate_from(&mut self, previous: &SemidenseMap) -> usize {
         if !self.valid
-            || !isometry_is_finite(&previous.t_world_cam)
+            || !se3::is_finite(&previous.t_world_cam)
             || !camera_is_usable(&previous.camera)
         {
             return 0;
@@ -439,7 +435,7 @@ impl SemidenseKeyframe {
             candidates: self.candidates.len(),
             ..Default::default()
         };
-        if !self.valid || !isometry_is_finite(t_world_cam) {
+        if !self.valid || !se3::is_finite(t_world_cam) {
             stats.skipped = Some(ViewSkip::NonFinitePose);
             return stats;
         }

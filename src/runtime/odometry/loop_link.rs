@@ -8,6 +8,7 @@
 
 use super::Odometry;
 use crate::camera::CameraModel;
+use crate::geometry::se3;
 use crate::image::Image;
 use crate::loop_closure::closer::{LoopCloser, LoopClosureConfig, LoopClosureStats};
 use crate::mapping::semidense::SemidenseMap;
@@ -74,7 +75,7 @@ pub(super) struct LoopLink {
     /// of: MAVLink `reset_counter`).
     pub(super) corrections: u32,
     /// Jobs dropped because the queue was full (real time).
-    pub(super) jobs_dropped: usize,
+    jobs_dropped: usize,
 }
 
 impl LoopLink {
@@ -131,9 +132,7 @@ impl LoopLink {
     /// A correction from the closer, taken if it is finite; counted as a jump if it moves the
     /// published pose by more than [`JUMP_M`] or [`JUMP_RAD`].
     fn take(&mut self, c: Isometry3<f64>) {
-        let finite = c.translation.vector.iter().all(|x| x.is_finite())
-            && c.rotation.coords.iter().all(|x| x.is_finite());
-        if !finite {
+        if !se3::is_finite(&c) {
             return;
         }
         let d = self.correction.inverse() * c;
@@ -158,8 +157,13 @@ impl LoopLink {
         self.correction
     }
 
+    /// The closer's counters with the odometry side's: jobs dropped and the published pose's jumps.
     pub(super) fn stats(&self) -> LoopClosureStats {
-        self.stats.clone()
+        LoopClosureStats {
+            jobs_dropped: self.jobs_dropped,
+            published_jumps: self.corrections,
+            ..self.stats.clone()
+        }
     }
 }
 

@@ -609,10 +609,7 @@ impl Odometry {
                 f.result.state = f.result.state.moved_by_world(&c);
             }
             f.loop_corrections = link.corrections;
-            let mut st = link.stats();
-            st.jobs_dropped = link.jobs_dropped;
-            st.published_jumps = link.corrections;
-            self.stats.loop_closure = Some(st);
+            self.stats.loop_closure = Some(link.stats());
         }
         self.times.total_s = started.elapsed().as_secs_f64();
         self.times.cpu_s = cpu_started
