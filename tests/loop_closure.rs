@@ -114,9 +114,22 @@ fn fly(
     image_3: &Image<u8>,
     truth_3: &Isometry3<f64>,
 ) -> (LoopCloser, Isometry3<f64>, Option<u32>) {
+    fly_with(room, image_3, truth_3, config(), 1.0)
+}
+
+/// [`fly`] with the closer's configuration `cfg` and its odometry edges' deviations times
+/// `odometry_noise_scale`.
+fn fly_with(
+    room: &Room,
+    image_3: &Image<u8>,
+    truth_3: &Isometry3<f64>,
+    cfg: LoopClosureConfig,
+    odometry_noise_scale: f64,
+) -> (LoopCloser, Isometry3<f64>, Option<u32>) {
     let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
     let (img_a, depth_a) = room.view(0, &a);
-    let mut closer = LoopCloser::new(config(), room.camera);
+    let mut closer = LoopCloser::new(cfg, room.camera);
+    closer.set_odometry_noise_scale(odometry_noise_scale);
     closer.add_keyframe(0, &a, None, &img_a);
     closer.attach_map(0, &room.map(&a, &img_a, &depth_a));
     let d = drift();
@@ -156,6 +169,47 @@ fn back_at_a_mapped_place_the_correction_takes_the_drift_out() {
     assert!(err.rotation.angle() < 0.3f64.to_radians(), "{err}");
     let s = closer.stats();
     assert_eq!((s.keyframes, s.loops_closed), (4, 1));
+}
+
+/// The odometry edges' deviations scaled (`odometry_std_from_rest`: by the gyro noise the pad
+/// measured): edges ten times tighter than [`config`]'s hold the drifted keyframes against the
+/// loop, and scaled back by ten the loop takes the drift out as with [`config`] itself.
+#[test]
+fn the_odometry_noise_scale_weighs_the_odometry_against_the_loop() {
+    let room = Room::new();
+    let truth_3 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
+    let (image_3, _) = room.view(3, &truth_3);
+    let tight = LoopClosureConfig {
+        odometry_position_std_m: 0.01,
+        odometry_yaw_std_rad: 0.003,
+        ..config()
+    };
+    let error = |scale: f64| {
+        let (closer, odometry_3, closed_to) =
+            fly_with(&room, &image_3, &truth_3, tight.clone(), scale);
+        assert_eq!(closed_to, Some(0), "{:?}", closer.stats());
+        let err = (closer.correction() * odometry_3).inverse() * truth_3;
+        (
+            err.translation.vector.norm(),
+            err.rotation.angle().to_degrees(),
+        )
+    };
+    let (held_m, held_deg) = error(1.0);
+    let (freed_m, freed_deg) = error(10.0);
+    println!(
+        "after the loop: tight edges {held_m:.4} m {held_deg:.3}°, scaled by 10 {freed_m:.4} m {freed_deg:.3}°"
+    );
+    assert!(
+        freed_m < 0.02 && freed_deg < 0.3,
+        "{freed_m} m {freed_deg}°"
+    );
+    assert!(
+        held_m > 0.05,
+        "tight edges let the loop take out all but {held_m} m"
+    );
+    // A scale that is not a positive number is ignored.
+    let (nan_m, _) = error(f64::NAN);
+    assert_eq!(nan_m, held_m);
 }
 
 #[test]

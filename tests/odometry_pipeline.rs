@@ -1189,13 +1189,51 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
         }
     }
     assert!(moved > 0, "no published pose was corrected");
-    // The published pose jumps only where a loop was closed (a keyframe without one carries its
-    // host's correction, which is no jump).
+    // The published pose jumps only where a loop was closed or the keyframe tracked changed
+    // world (a return to a stored keyframe, or back from one): a keyframe without a loop
+    // carries its host's correction, which is no jump.
+    let o = &closed.odometry;
+    let switches = o.keyframe_reuses + o.keyframe_reuse_failures;
     assert!(
-        stats.published_jumps >= 1 && stats.published_jumps as usize <= stats.loops_closed,
-        "{} jumps for {} loops",
+        stats.published_jumps >= 1
+            && stats.published_jumps as usize <= stats.loops_closed + switches,
+        "{} jumps for {} loops and {switches} switches of world",
         stats.published_jumps,
         stats.loops_closed
+    );
+    assert_eq!(stats.guided_returns, 0);
+
+    // `guide_returns`: the returns to stored keyframes are sought and started from the graph's
+    // placement of the odometry in each stored keyframe's world, and the published pose is the
+    // odometry's own (`correct_published_pose = false`): the loops act on the odometry itself.
+    opts.loop_closure.guide_returns = true;
+    opts.loop_closure.correct_published_pose = false;
+    let guided = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let e_guided = eval_against_truth(&dir, &guided);
+    let g = guided
+        .odometry
+        .loop_closure
+        .clone()
+        .expect("loop closure stats");
+    println!(
+        "ATE with guided returns {:.2} cm; {g:?}; returns {} ({} failed) against {} ({} failed)",
+        e_guided.ate_rmse_m * 100.0,
+        guided.odometry.keyframe_reuses,
+        guided.odometry.keyframe_reuse_failures,
+        o.keyframe_reuses,
+        o.keyframe_reuse_failures,
+    );
+    assert!(g.loops_closed > 0 && g.guided_returns > 0, "{g:?}");
+    assert!(g.guided_returns <= guided.odometry.keyframe_reuses);
+    assert_eq!(g.published_jumps, 0, "the published pose is the odometry's");
+    assert!(guided.frames.iter().all(|f| f.state.is_finite()));
+    assert_eq!(guided.odometry.resets, plain.odometry.resets);
+    // Still the flight: metric and within the plain replay's error plus a centimetre.
+    assert!(
+        e_guided.ate_rmse_m < e_plain.ate_rmse_m + 0.01,
+        "{} m against {} m",
+        e_guided.ate_rmse_m,
+        e_plain.ate_rmse_m
     );
     done_with_ideal_flight(&dir);
 }

@@ -62,15 +62,40 @@ pub struct LoopClosureConfig {
     pub max_correction_m: f64,
     /// …and rad.
     pub max_correction_rad: f64,
-    /// Standard deviation of an odometry edge's relative heading, rad, and position, m: loose
-    /// (S-V101's odometry drifts by decimetres over ten keyframes in its scale traps; edges held
-    /// to 1 cm / 0.002 rad made the graph's robust kernel refuse 13–17 true loops per flight and
-    /// left seed 5 at 0.26 m, 3 cm / 0.005 rad 0.20 m, 6 cm / 0.01 rad 0.17 m).
+    /// Standard deviation of an odometry edge's relative heading, rad, and position, m, before
+    /// [`Self::odometry_std_from_rest`] scales them. S-V101's odometry drifts by decimetres over
+    /// ten keyframes in its scale traps (edges held to 1 cm / 0.002 rad made the graph's robust
+    /// kernel refuse 13–17 true loops per flight), the demo's by a centimetre over its flight;
+    /// scaled by the pad's gyro noise, these become 5.9 cm / 0.012 rad on S-V101's real IMU and
+    /// 1.0–1.4 cm / 0.002–0.003 rad on the demo's.
     pub odometry_yaw_std_rad: f64,
     pub odometry_position_std_m: f64,
-    /// Standard deviation of a loop edge's relative heading, rad, and position, m.
+    /// Standard deviation of a loop edge's relative heading, rad, and position, m: a loop is
+    /// measured against one old keyframe's map, whose depths are off by 1–4 %, so a few
+    /// centimetres (3 cm / 0.005 rad moved the demo's accurate odometry by its loops' errors:
+    /// mean ATE 1.47 → 2.2 cm over 8 seeds; 5 cm / 0.01 rad 1.57 cm, S-V101 alike).
     pub loop_yaw_std_rad: f64,
     pub loop_position_std_m: f64,
+    /// Added to an edge's position standard deviation per metre between its two keyframes (in
+    /// quadrature): a map whose depths are off by a few percent places a camera a baseline away
+    /// off by as many percent of it, along it — the loop's PnP measures against the old
+    /// keyframe's map, the odometry chains its maps.
+    pub loop_position_std_per_m: f64,
+    pub odometry_position_std_per_m: f64,
+    /// The odometry edges' standard deviations are multiplied by the gyro's noise measured on the
+    /// pad over its datasheet density (at least 1; the odometry's `rotation_noise_scale`): a
+    /// vehicle whose gyro is as its datasheet says drifts little between keyframes, one whose
+    /// gyro is several times noisier (S-V101's real IMU, ×5.9) drifts as much more.
+    pub odometry_std_from_rest: bool,
+    /// Returns to stored keyframes are sought, and started, from the current pose moved into
+    /// each stored keyframe's world by the graph (`C_k⁻¹ · C_now`, the corrections of the
+    /// keyframe and of the one tracked): the drift since the stored keyframe was mapped, which
+    /// the tracker alone must otherwise bridge from the drifted pose, is taken out first. A
+    /// return that holds its probation then moves the odometry itself onto the old map.
+    pub guide_returns: bool,
+    /// Apply the graph's correction to the published pose (else the loops act only through
+    /// `guide_returns`).
+    pub correct_published_pose: bool,
     /// Gauss–Newton iterations per solve of the graph.
     pub iterations: usize,
     /// Keyframes kept at most (the graph stops growing: memory and solve time stay bounded).
@@ -93,10 +118,15 @@ impl Default for LoopClosureConfig {
             max_inlier_rms_px: 1.5,
             max_correction_m: 1.5,
             max_correction_rad: 0.25,
-            odometry_yaw_std_rad: 0.01,
-            odometry_position_std_m: 0.06,
-            loop_yaw_std_rad: 0.005,
-            loop_position_std_m: 0.03,
+            odometry_yaw_std_rad: 0.002,
+            odometry_position_std_m: 0.01,
+            loop_yaw_std_rad: 0.01,
+            loop_position_std_m: 0.05,
+            loop_position_std_per_m: 0.0,
+            odometry_position_std_per_m: 0.0,
+            odometry_std_from_rest: true,
+            guide_returns: false,
+            correct_published_pose: true,
             iterations: 10,
             max_keyframes: 2000,
         }
@@ -141,6 +171,9 @@ pub struct LoopClosureStats {
     /// Times the published pose jumped by a new correction (the odometry's count; MAVLink
     /// `reset_counter` must count them).
     pub published_jumps: u32,
+    /// Returns to stored keyframes started from the graph's placement (the odometry's count,
+    /// `guide_returns`).
+    pub guided_returns: usize,
     /// Time per new keyframe (corners, search, graph solve), ms: mean and max.
     pub keyframe_ms_mean: f64,
     pub keyframe_ms_max: f64,
@@ -154,7 +187,15 @@ pub struct LoopCloser {
     entries: HashMap<u32, Entry>,
     /// Keyframe id of each node.
     node_ids: Vec<u32>,
+    /// Factor on the odometry edges' standard deviations ([`Self::set_odometry_noise_scale`]).
+    odometry_noise_scale: f64,
     stats: LoopClosureStats,
+}
+
+/// A position standard deviation `std_m` with `per_m` of the baseline of `t_i_j` added in
+/// quadrature, m.
+fn with_baseline(std_m: f64, per_m: f64, t_i_j: &Isometry3<f64>) -> f64 {
+    std_m.hypot(per_m * t_i_j.translation.vector.norm())
 }
 
 /// Heading of a camera pose's optical axis is compared through this.
@@ -170,6 +211,7 @@ impl LoopCloser {
             graph: PoseGraph::new(),
             entries: HashMap::new(),
             node_ids: Vec::new(),
+            odometry_noise_scale: 1.0,
             stats: LoopClosureStats::default(),
         }
     }
@@ -191,6 +233,29 @@ impl LoopCloser {
         }
     }
 
+    /// Multiplies the standard deviations of the odometry edges added from now on by `scale`
+    /// (finite and positive; else ignored).
+    pub fn set_odometry_noise_scale(&mut self, scale: f64) {
+        if scale.is_finite() && scale > 0.0 {
+            self.odometry_noise_scale = scale;
+        }
+    }
+
+    /// The correction of the odometry's world as it was when keyframe `id` was started (the
+    /// graph's pose of it over the odometry's): `None` for a keyframe the closer does not know.
+    pub fn correction_of(&self, id: u32) -> Option<Isometry3<f64>> {
+        self.entries.get(&id).map(|e| self.graph.correction(e.node))
+    }
+
+    /// Every keyframe's [`correction_of`](Self::correction_of), into `out` (cleared first).
+    pub fn corrections_into(&self, out: &mut HashMap<u32, Isometry3<f64>>) {
+        out.clear();
+        let graph = &self.graph;
+        out.extend(
+            (self.node_ids.iter().enumerate()).map(|(node, &id)| (id, graph.correction(node))),
+        );
+    }
+
     /// A new keyframe `id` at the odometry's camera pose `t_world_cam`, started from keyframe
     /// `host` (whose camera pose is now `t_world_cam_host`), with its image. Returns what the
     /// loop search did.
@@ -208,9 +273,14 @@ impl LoopCloser {
         let node = self.graph.add_node(*t_world_cam);
         self.node_ids.push(id);
         let c = &self.cfg;
-        let noise = EdgeNoise {
-            yaw_std_rad: c.odometry_yaw_std_rad,
-            position_std_m: c.odometry_position_std_m,
+        let k = self.odometry_noise_scale;
+        let noise = |t_i_j: &Isometry3<f64>| EdgeNoise {
+            yaw_std_rad: k * c.odometry_yaw_std_rad,
+            position_std_m: k * with_baseline(
+                c.odometry_position_std_m,
+                c.odometry_position_std_per_m,
+                t_i_j,
+            ),
         };
         // Joined to the keyframe it was tracked from; else (a restart of the odometry) to the
         // previous node, ten times looser.
@@ -219,16 +289,17 @@ impl LoopCloser {
         // cannot fail; a refusal would leave the node joined by the other branch's edge.
         if let Some((h, t_world_cam_host)) = known_host {
             let t_h_n = t_world_cam_host.inverse() * t_world_cam;
-            let _ = self.graph.add_relative_edge(h, node, &t_h_n, noise);
+            let _ = self.graph.add_relative_edge(h, node, &t_h_n, noise(&t_h_n));
             // Carried by the host's correction (the node before may be far: after a return).
             let c = self.graph.correction(h);
             self.graph.set_estimate(node, &(c * t_world_cam));
         } else if node > 0 {
             let prev = node - 1;
             let t_p_n = self.graph.odometry_pose(prev).inverse() * t_world_cam;
+            let n = noise(&t_p_n);
             let loose = EdgeNoise {
-                yaw_std_rad: 10.0 * noise.yaw_std_rad,
-                position_std_m: 10.0 * noise.position_std_m,
+                yaw_std_rad: 10.0 * n.yaw_std_rad,
+                position_std_m: 10.0 * n.position_std_m,
             };
             let _ = self.graph.add_relative_edge(prev, node, &t_p_n, loose);
         }
@@ -391,7 +462,11 @@ impl LoopCloser {
             let t_old_new = sol.t_query_ref.inverse();
             let noise = EdgeNoise {
                 yaw_std_rad: self.cfg.loop_yaw_std_rad,
-                position_std_m: self.cfg.loop_position_std_m,
+                position_std_m: with_baseline(
+                    self.cfg.loop_position_std_m,
+                    self.cfg.loop_position_std_per_m,
+                    &t_old_new,
+                ),
             };
             let old_node = old.node;
             if self

@@ -205,21 +205,36 @@ impl KeyframeStore {
         excluded: impl Fn(u32) -> bool,
         l: &ReachLimits,
     ) -> Option<(u32, f64)> {
+        self.closest_seen_from(|_| *t_world_cam, border_px, excluded, l)
+    }
+
+    /// [`KeyframeStore::closest_within`] with the camera's pose given per stored keyframe, in
+    /// that keyframe's world: `t_world_cam(id)` (a loop closure places the drifted odometry
+    /// differently against each old map).
+    pub fn closest_seen_from(
+        &self,
+        t_world_cam: impl Fn(u32) -> Isometry3<f64>,
+        border_px: f64,
+        excluded: impl Fn(u32) -> bool,
+        l: &ReachLimits,
+    ) -> Option<(u32, f64)> {
         // Nearest first; the overlap (a projection of every point) only until one passes.
-        let mut near: Vec<(f64, u32, &StoredKeyframe)> = self
+        let mut near: Vec<(f64, u32, &StoredKeyframe, Isometry3<f64>)> = self
             .entries
             .iter()
             .filter(|e| !excluded(e.kf.id))
             .filter_map(|e| {
-                let (b, r) = distance(&e.kf, t_world_cam);
+                let at = t_world_cam(e.kf.id);
+                let (b, r) = distance(&e.kf, &at);
                 let d = b / l.max_baseline_ratio.max(1e-9) + r / l.max_rotation_rad.max(1e-9);
-                (b <= l.max_baseline_ratio && r <= l.max_rotation_rad).then_some((d, e.kf.id, e))
+                (b <= l.max_baseline_ratio && r <= l.max_rotation_rad)
+                    .then_some((d, e.kf.id, e, at))
             })
             .collect();
         near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        near.into_iter().find_map(|(_, id, e)| {
+        near.into_iter().find_map(|(_, id, e, at)| {
             let o =
-                e.kf.predicted_overlap(t_world_cam, self.cfg.overlap_level, border_px);
+                e.kf.predicted_overlap(&at, self.cfg.overlap_level, border_px);
             (o >= l.min_overlap).then_some((id, o))
         })
     }
@@ -315,6 +330,44 @@ mod tests {
         );
         // Facing away from all of them: nothing.
         assert_eq!(store.closest(&pose(0.0, 3.0), 2.0, |_| false), None);
+    }
+
+    /// A loop closure places the drifted camera differently in each stored keyframe's world: a
+    /// keyframe out of reach from the odometry's pose is found from the pose seen in its world.
+    #[test]
+    fn closest_seen_from_looks_at_each_keyframe_from_its_own_world() {
+        let mut store = KeyframeStore::new(ReuseConfig::default());
+        assert!(store.insert(keyframe(1, pose(0.0, 0.0)), map()));
+        assert!(store.insert(keyframe(2, pose(1.5, 0.0)), map()));
+        let limits = ReachLimits {
+            max_baseline_ratio: 0.2,
+            max_rotation_rad: 0.3,
+            min_overlap: 0.85,
+        };
+        // The odometry has drifted 0.8 m along x: out of reach of both (0.8 / 0.7 m, over the
+        // 2 m depth 0.4 / 0.35).
+        let drifted = pose(0.8, 0.0);
+        let same = |_| drifted;
+        assert_eq!(store.closest_seen_from(same, 2.0, |_| false, &limits), None);
+        // In keyframe 1's world the camera is back 0.75 m (0.05 m from it); keyframe 2's world
+        // is the odometry's.
+        let back = Isometry3::translation(-0.75, 0.0, 0.0);
+        let seen = |id: u32| if id == 1 { back * drifted } else { drifted };
+        let (id, overlap) = store
+            .closest_seen_from(seen, 2.0, |_| false, &limits)
+            .unwrap();
+        assert_eq!(id, 1);
+        assert!(overlap > 0.9, "{overlap}");
+        // Excluded, nothing else is in reach.
+        assert_eq!(
+            store.closest_seen_from(seen, 2.0, |id| id == 1, &limits),
+            None
+        );
+        // The same pose everywhere is `closest_within`.
+        assert_eq!(
+            store.closest_within(&pose(0.05, 0.0), 2.0, |_| false, &limits),
+            store.closest_seen_from(|_| pose(0.05, 0.0), 2.0, |_| false, &limits)
+        );
     }
 
     #[test]

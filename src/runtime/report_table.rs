@@ -213,6 +213,15 @@ impl ReplayReport {
                     }
                 ),
             );
+            if l.guided_returns > 0 {
+                row(
+                    "guided returns",
+                    format!(
+                        "{} returns started from the graph's placement",
+                        l.guided_returns
+                    ),
+                );
+            }
         }
         if self.recovery_s_max.is_some() || self.unrecovered_s.is_some() {
             let longest = self

@@ -24,18 +24,32 @@ impl Odometry {
             return false;
         }
         let at = self.tracker.t_world_cam();
-        let Some(id) = self.stored_keyframe_covering(&at, self.tracking_kf, after_loss) else {
+        let tracked = self.tracking_kf;
+        let now = match &mut self.loop_closer {
+            Some(link) if self.cfg.loop_closure.guide_returns => Some(link.correction_for(tracked)),
+            _ => None,
+        };
+        let Some((id, change)) = self.stored_keyframe_covering(&at, tracked, after_loss, now)
+        else {
             return false;
         };
-        self.switch_to(id, after_loss)
+        self.switch_to(id, after_loss, change)
     }
 
     /// Tracks stored keyframe `id` from the next frame on (see
-    /// [`Self::switch_to_stored_keyframe`]). `false` if there is no such keyframe.
-    fn switch_to(&mut self, id: u32, after_loss: bool) -> bool {
+    /// [`Self::switch_to_stored_keyframe`]), the state moved first by the world change `change`
+    /// (a rotation about the vertical and a translation: the loop closure's placement of the
+    /// odometry against the stored keyframe's world; the identity without it). `false` if there
+    /// is no such keyframe.
+    fn switch_to(&mut self, id: u32, after_loss: bool, change: Isometry3<f64>) -> bool {
         let Some(stored) = self.store.get(id).cloned() else {
             return false;
         };
+        if change != Isometry3::identity()
+            && let Some(link) = &mut self.loop_closer
+        {
+            link.guided_returns += 1;
+        }
         let previous_fits = self.reuse_frames > self.cfg.reuse.probation_frames
             && self.last_inlier_ratio >= self.cfg.reuse.probation_min_inlier_ratio;
         let previous = self.tracker.set_keyframe(stored.kf);
@@ -55,15 +69,17 @@ impl Odometry {
         // Frames since the last keyframe carry the drift the stored keyframe corrects.
         self.history.clear();
         if !self.reusing {
-            self.switch_correction = Some(SwitchCorrection::Pending);
+            self.switch_correction = Some(SwitchCorrection::Pending { premove: change });
             // Leaving the chain of new keyframes: the stored keyframes agree with each other,
             // not with the drift of the chain. Position and heading drift; tilt does not
             // (gravity observes it), so a stored keyframe may move the first two only.
             let r = &self.cfg.reuse;
             let x = *self.tracker.state();
             let mut cov = *self.tracker.covariance();
+            // The chain's own state, to go back to if the stored keyframe fails.
             self.chain_shadow =
                 (!after_loss).then(|| ChainShadow::new(x, cov, self.tracker.brightness()));
+            let x = x.moved_by_world(&change);
             // World vertical in the body frame: the axis of a heading change.
             let a = x.nav.r_world_body.inverse() * Vector3::z();
             let yaw = a * a.transpose() * r.switch_yaw_std_rad.powi(2);
@@ -74,6 +90,10 @@ impl Odometry {
                 cov[(i + 3, i + 3)] += r.switch_position_std_m.powi(2);
             }
             self.tracker.reset_state(x, cov);
+        } else if change != Isometry3::identity() {
+            // From one stored keyframe to another: the state moved into the new one's world.
+            let (x, cov) = (*self.tracker.state(), *self.tracker.covariance());
+            self.tracker.reset_state(x.moved_by_world(&change), cov);
         }
         self.reusing = true;
         self.relocalised = after_loss;
@@ -99,17 +119,22 @@ impl Odometry {
         kf.id = MISPLACED_KEYFRAME_ID;
         kf.t_world_cam.translation.vector += offset_m;
         map.t_world_cam.translation.vector += offset_m;
-        self.store.insert(kf, Arc::new(map)) && self.switch_to(MISPLACED_KEYFRAME_ID, false)
+        self.store.insert(kf, Arc::new(map))
+            && self.switch_to(MISPLACED_KEYFRAME_ID, false, Isometry3::identity())
     }
 
     /// The stored keyframe that covers the view from `t_world_cam`, other than `current`, a
-    /// keyframe of the window or one that failed since it was stored (`[reuse]`).
+    /// keyframe of the window or one that failed since it was stored (`[reuse]`), with the
+    /// change of world that takes the odometry's pose into that keyframe's: with `now`, the
+    /// loop closer's correction of the odometry's world (`guide_returns`), each stored keyframe
+    /// is seen from the pose the graph places in its world; else the identity.
     pub(super) fn stored_keyframe_covering(
         &self,
         t_world_cam: &Isometry3<f64>,
         current: Option<u32>,
         after_loss: bool,
-    ) -> Option<u32> {
+        now: Option<Isometry3<f64>>,
+    ) -> Option<(u32, Isometry3<f64>)> {
         let (window, failed) = (&self.window, &self.failed_reuse);
         let window_too = after_loss && self.cfg.bootstrap.relocalise_in_window;
         let excluded = |id| {
@@ -117,20 +142,28 @@ impl Odometry {
                 || (!window_too && window.state(id).is_some())
                 || failed.contains(&id)
         };
+        let change = |id: u32| match (&self.loop_closer, &now) {
+            (Some(link), Some(now)) => link.world_change(id, now),
+            _ => Isometry3::identity(),
+        };
         let border_px = self.cfg.tracking.border_px;
-        let b = &self.cfg.bootstrap;
-        if after_loss {
-            let limits = ReachLimits {
+        let (b, r) = (&self.cfg.bootstrap, &self.cfg.reuse);
+        let limits = if after_loss {
+            ReachLimits {
                 max_baseline_ratio: b.relocalise_max_baseline_ratio,
                 max_rotation_rad: b.relocalise_max_rotation_rad,
                 min_overlap: b.relocalise_min_overlap,
-            };
-            self.store
-                .closest_within(t_world_cam, border_px, excluded, &limits)
+            }
         } else {
-            self.store.closest(t_world_cam, border_px, excluded)
-        }
-        .map(|(id, _overlap)| id)
+            ReachLimits {
+                max_baseline_ratio: r.max_baseline_ratio,
+                max_rotation_rad: r.max_rotation_rad,
+                min_overlap: r.min_overlap,
+            }
+        };
+        self.store
+            .closest_seen_from(|id| change(id) * t_world_cam, border_px, excluded, &limits)
+            .map(|(id, _overlap)| (id, change(id)))
     }
 
     /// Keeps the tracking keyframe `kf` (with its map), which is being left, for returning to it

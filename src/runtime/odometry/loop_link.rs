@@ -1,5 +1,6 @@
 //! The loop closer's part in the odometry's flow: every new keyframe and every map left handed to
-//! [`LoopCloser`], and its correction applied to the published pose.
+//! [`LoopCloser`], its correction applied to the published pose, and its per-keyframe
+//! corrections handed to the returns to stored keyframes (`guide_returns`).
 //!
 //! Offline the loop closer runs inline, on the tracking thread, at the keyframe that feeds it (so
 //! a replay is deterministic). In real time it runs on its own thread behind a bounded queue: a
@@ -15,6 +16,7 @@ use crate::mapping::semidense::SemidenseMap;
 use crate::tracking::Keyframe;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use nalgebra::Isometry3;
+use std::collections::HashMap;
 use std::sync::Arc;
 
 /// Jobs queued for the loop closer's thread.
@@ -36,11 +38,13 @@ enum LoopJob {
         id: u32,
         map: Arc<SemidenseMap>,
     },
+    OdometryNoiseScale(f64),
 }
 
 /// What the thread reports after each job.
 struct LoopReport {
     correction: Isometry3<f64>,
+    by_keyframe: HashMap<u32, Isometry3<f64>>,
     stats: LoopClosureStats,
 }
 
@@ -55,6 +59,7 @@ fn run(closer: &mut LoopCloser, job: LoopJob) {
             closer.add_keyframe(id, &t_world_cam, host, &image);
         }
         LoopJob::Map { id, map } => closer.attach_map(id, &map),
+        LoopJob::OdometryNoiseScale(s) => closer.set_odometry_noise_scale(s),
     }
 }
 
@@ -69,13 +74,20 @@ enum Runner {
 /// The odometry's handle on the loop closer.
 pub(super) struct LoopLink {
     runner: Runner,
+    /// The newest keyframe's correction.
     correction: Isometry3<f64>,
+    /// Every keyframe's correction (`LoopCloser::correction_of`).
+    by_keyframe: HashMap<u32, Isometry3<f64>>,
+    /// The correction last applied to the published pose.
+    published: Isometry3<f64>,
     stats: LoopClosureStats,
     /// Times the published pose's correction changed (a jump the flight controller must be told
     /// of: MAVLink `reset_counter`).
     pub(super) corrections: u32,
     /// Jobs dropped because the queue was full (real time).
     jobs_dropped: usize,
+    /// Returns to stored keyframes started from the graph's placement.
+    pub(super) guided_returns: usize,
 }
 
 impl LoopLink {
@@ -90,8 +102,11 @@ impl LoopLink {
                 .spawn(move || {
                     for job in job_rx {
                         run(&mut closer, job);
+                        let mut by_keyframe = HashMap::new();
+                        closer.corrections_into(&mut by_keyframe);
                         let report = LoopReport {
                             correction: closer.correction(),
+                            by_keyframe,
                             stats: closer.stats(),
                         };
                         // The odometry takes only the newest; a full queue drops this one.
@@ -106,9 +121,12 @@ impl LoopLink {
         LoopLink {
             runner,
             correction: Isometry3::identity(),
+            by_keyframe: HashMap::new(),
+            published: Isometry3::identity(),
             stats: LoopClosureStats::default(),
             corrections: 0,
             jobs_dropped: 0,
+            guided_returns: 0,
         }
     }
 
@@ -117,6 +135,7 @@ impl LoopLink {
             Runner::Inline(closer) => {
                 run(closer, job);
                 let c = closer.correction();
+                closer.corrections_into(&mut self.by_keyframe);
                 self.stats = closer.stats();
                 self.take(c);
             }
@@ -129,21 +148,15 @@ impl LoopLink {
         }
     }
 
-    /// A correction from the closer, taken if it is finite; counted as a jump if it moves the
-    /// published pose by more than [`JUMP_M`] or [`JUMP_RAD`].
+    /// The newest keyframe's correction from the closer, taken if it is finite.
     fn take(&mut self, c: Isometry3<f64>) {
-        if !se3::is_finite(&c) {
-            return;
+        if se3::is_finite(&c) {
+            self.correction = c;
         }
-        let d = self.correction.inverse() * c;
-        if d.translation.vector.norm() > JUMP_M || d.rotation.angle() > JUMP_RAD {
-            self.corrections += 1;
-        }
-        self.correction = c;
     }
 
-    /// The newest correction of the odometry's world (reports of the thread taken in).
-    pub(super) fn correction(&mut self) -> Isometry3<f64> {
+    /// Takes in the thread's newest report (real time).
+    fn receive(&mut self) {
         if let Runner::Thread { reports, .. } = &self.runner {
             let mut newest = None;
             while let Ok(r) = reports.try_recv() {
@@ -151,10 +164,46 @@ impl LoopLink {
             }
             if let Some(r) = newest {
                 self.stats = r.stats;
+                self.by_keyframe = r.by_keyframe;
                 self.take(r.correction);
             }
         }
-        self.correction
+    }
+
+    /// The correction of the odometry's world while keyframe `tracked` is tracked: that
+    /// keyframe's (after a return to a stored keyframe the odometry is in its world), else the
+    /// newest keyframe's.
+    pub(super) fn correction_for(&mut self, tracked: Option<u32>) -> Isometry3<f64> {
+        self.receive();
+        tracked
+            .and_then(|id| self.by_keyframe.get(&id))
+            .filter(|c| se3::is_finite(c))
+            .copied()
+            .unwrap_or(self.correction)
+    }
+
+    /// The correction applied to the published pose while keyframe `tracked` is tracked
+    /// ([`Self::correction_for`]); counted as a jump if it moves the published pose by more than
+    /// [`JUMP_M`] or [`JUMP_RAD`] from the last one applied.
+    pub(super) fn publish(&mut self, tracked: Option<u32>) -> Isometry3<f64> {
+        let c = self.correction_for(tracked);
+        let d = self.published.inverse() * c;
+        if d.translation.vector.norm() > JUMP_M || d.rotation.angle() > JUMP_RAD {
+            self.corrections += 1;
+        }
+        self.published = c;
+        c
+    }
+
+    /// The change of world that takes a pose of the odometry whose correction is `now`
+    /// ([`Self::correction_for`] the keyframe tracked) into stored keyframe `stored`'s world as
+    /// the graph places the two: `C_stored⁻¹ · C_now`. The identity for a keyframe the closer
+    /// does not know (the odometry's own relation is all there is).
+    pub(super) fn world_change(&self, stored: u32, now: &Isometry3<f64>) -> Isometry3<f64> {
+        match self.by_keyframe.get(&stored).filter(|c| se3::is_finite(c)) {
+            Some(c) => c.inverse() * now,
+            None => Isometry3::identity(),
+        }
     }
 
     /// The closer's counters with the odometry side's: jobs dropped and the published pose's jumps.
@@ -162,12 +211,23 @@ impl LoopLink {
         LoopClosureStats {
             jobs_dropped: self.jobs_dropped,
             published_jumps: self.corrections,
+            guided_returns: self.guided_returns,
             ..self.stats.clone()
         }
     }
 }
 
 impl Odometry {
+    /// The gyro's noise measured on the pad (`rotation_noise_scale`, at least 1) scales the loop
+    /// closer's odometry edges from now on (`odometry_std_from_rest`).
+    pub(super) fn loop_odometry_noise_scale(&mut self, rotation_noise_scale: f64) {
+        if let Some(link) = &mut self.loop_closer
+            && self.cfg.loop_closure.odometry_std_from_rest
+        {
+            link.submit(LoopJob::OdometryNoiseScale(rotation_noise_scale));
+        }
+    }
+
     /// A new keyframe `id` at camera pose `t_world_cam` is installed, leaving `left` (tracked
     /// until now) with its final map `left_map` (`left_filled`: its depths were guessed, not
     /// measured — no map for the closer).
@@ -195,5 +255,56 @@ impl Odometry {
             host: left.map(|l| (l.id, l.t_world_cam)),
             image: image.clone(),
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn yawed(yaw_rad: f64, x_m: f64) -> Isometry3<f64> {
+        Isometry3::new(Vector3::new(x_m, 0.3, 0.0), Vector3::z() * yaw_rad)
+    }
+
+    fn close(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+        (a.to_homogeneous() - b.to_homogeneous()).norm() < 1e-12
+    }
+
+    /// The published pose takes the correction of the keyframe it was tracked against (after a
+    /// return, the stored keyframe's world), and a pose moves between two keyframes' worlds so
+    /// that the graph places it the same from either.
+    #[test]
+    fn corrections_follow_the_keyframe_tracked_and_change_worlds_consistently() {
+        let cfg = LoopClosureConfig::default();
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let (c1, c2) = (yawed(0.1, 0.5), yawed(-0.05, 0.2));
+        link.by_keyframe.insert(1, c1);
+        link.by_keyframe.insert(2, c2);
+        let mut nan = c1;
+        nan.translation.vector.x = f64::NAN;
+        link.by_keyframe.insert(3, nan);
+        link.correction = c2;
+        assert!(close(&link.correction_for(Some(1)), &c1));
+        // Unknown, not finite or none: the newest keyframe's.
+        for id in [Some(9), Some(3), None] {
+            assert!(close(&link.correction_for(id), &c2));
+        }
+        // A pose of keyframe 2's world, moved into keyframe 1's, is placed where it was.
+        let p = yawed(0.3, 1.0);
+        let now = link.correction_for(Some(2));
+        let change = link.world_change(1, &now);
+        assert!(close(&(c1 * (change * p)), &(c2 * p)));
+        assert!(close(&link.world_change(2, &now), &Isometry3::identity()));
+        assert_eq!(link.world_change(9, &now), Isometry3::identity());
+        assert_eq!(link.world_change(3, &now), Isometry3::identity());
+        // Each change of the published correction is one jump; the same one again is none.
+        assert!(close(&link.publish(Some(2)), &c2));
+        link.publish(Some(2));
+        assert_eq!(link.corrections, 1);
+        link.publish(Some(1));
+        link.publish(Some(2));
+        assert_eq!(link.corrections, 3);
+        assert_eq!(link.stats().published_jumps, 3);
     }
 }

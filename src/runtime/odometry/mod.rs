@@ -293,6 +293,9 @@ pub struct Odometry {
     /// its first map has arrived (for the latency statistics).
     kf_started: Option<(u32, u64, bool)>,
     tracking_kf: Option<u32>,
+    /// The keyframe the newest frame was tracked against (whose world its pose is in: the loop
+    /// closer's correction of it is the one to publish it with).
+    tracked_against: Option<u32>,
     /// The mapper's map of the tracking keyframe as installed.
     tracking_map: Option<Arc<SemidenseMap>>,
     /// The tracking keyframe includes depthless pixels at a guessed depth.
@@ -490,6 +493,7 @@ impl Odometry {
             frame_number: 0,
             kf_started: None,
             tracking_kf: None,
+            tracked_against: None,
             tracking_map: None,
             tracking_kf_filled: false,
             last_median_inv_depth: None,
@@ -604,9 +608,11 @@ impl Odometry {
         self.times = FrameTimes::default();
         let mut f = self.process_frame(t, image);
         if let Some(link) = &mut self.loop_closer {
-            let c = link.correction();
-            if f.valid {
-                f.result.state = f.result.state.moved_by_world(&c);
+            if self.cfg.loop_closure.correct_published_pose {
+                let c = link.publish(self.tracked_against);
+                if f.valid {
+                    f.result.state = f.result.state.moved_by_world(&c);
+                }
             }
             f.loop_corrections = link.corrections;
             self.stats.loop_closure = Some(link.stats());
@@ -1035,6 +1041,7 @@ impl Odometry {
             };
         self.window
             .set_imu_rotation_noise_scale(rotation_noise_scale);
+        self.loop_odometry_noise_scale(rotation_noise_scale);
         RestImuDensity {
             gyro_rad_s_sqrt_hz: e.gyro_density_rad_s_sqrt_hz,
             accel_m_s2_sqrt_hz: e.accel_density_m_s2_sqrt_hz,
@@ -1062,6 +1069,7 @@ impl Odometry {
             s.advance(&pre);
         }
         let r = self.tracker.track(t, image, &pre);
+        self.tracked_against = self.tracking_kf;
         // The first frame on another keyframe jumps by the drift between the two: the IMU's
         // step stands in for it.
         let p1 = if std::mem::take(&mut self.keyframe_jump) {
@@ -1069,10 +1077,14 @@ impl Odometry {
                 nav: pre.predict(&x0.nav, &x0.bias),
                 bias: x0.bias,
             };
-            if self.switch_correction == Some(SwitchCorrection::Pending) {
+            if let Some(SwitchCorrection::Pending { premove }) = self.switch_correction {
+                // The state was moved by `premove` before this frame: the correction from the
+                // chain's world is the tracked jump after it.
                 self.switch_correction = r.flag.is_none().then(|| SwitchCorrection::Measured {
-                    c: pose_of(&r.state) * pose_of(&predicted).inverse(),
-                    pivot_m: predicted.nav.p_world_m,
+                    c: pose_of(&r.state) * pose_of(&predicted).inverse() * premove,
+                    pivot_m: premove
+                        .inverse_transform_point(&predicted.nav.p_world_m.into())
+                        .coords,
                 });
             }
             predicted.nav.p_world_m
@@ -1098,7 +1110,7 @@ impl Odometry {
         let covered = || {
             self.cfg.reuse.enabled
                 && self
-                    .stored_keyframe_covering(&at, Some(s.kf.id), false)
+                    .stored_keyframe_covering(&at, Some(s.kf.id), false, None)
                     .is_some()
         };
         if !fits && !covered() {
@@ -1258,8 +1270,9 @@ impl ChainShadow {
 /// The drift correction a switch to a stored keyframe makes (`Odometry::switch_correction`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum SwitchCorrection {
-    /// Switched; the next frame, tracked on the stored keyframe, measures it.
-    Pending,
+    /// Switched, the state moved first by `premove` (the loop closure's change of world; the
+    /// identity without it); the next frame, tracked on the stored keyframe, measures the rest.
+    Pending { premove: Isometry3<f64> },
     /// `T_stored = c · T_chain` from that frame's tracked pose against its IMU prediction from
     /// the last frame on the chain, and that predicted position, m.
     Measured {
