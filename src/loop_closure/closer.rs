@@ -96,6 +96,11 @@ pub struct LoopClosureConfig {
     /// Apply the graph's correction to the published pose (else the loops act only through
     /// `guide_returns`).
     pub correct_published_pose: bool,
+    /// Real time: the loop closer's thread raises its nice value by this much (Linux; 0 = the
+    /// tracker's). Above `[bootstrap] background_nice`: a loop can wait, the mapper's next map is
+    /// what the tracker waits for (at nice 0 the closer's thread delayed the mapper on two cores
+    /// and the demo lost in real time).
+    pub thread_nice: i32,
     /// Gauss–Newton iterations per solve of the graph.
     pub iterations: usize,
     /// Keyframes kept at most (the graph stops growing: memory and solve time stay bounded).
@@ -127,6 +132,7 @@ impl Default for LoopClosureConfig {
             odometry_std_from_rest: true,
             guide_returns: false,
             correct_published_pose: true,
+            thread_nice: 15,
             iterations: 10,
             max_keyframes: 2000,
         }

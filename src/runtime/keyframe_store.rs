@@ -188,13 +188,17 @@ impl KeyframeStore {
         border_px: f64,
         excluded: impl Fn(u32) -> bool,
     ) -> Option<(u32, f64)> {
+        self.closest_within(t_world_cam, border_px, excluded, &self.limits())
+    }
+
+    /// `[reuse]`'s reach: `max_baseline_ratio`, `max_rotation_rad`, `min_overlap`.
+    pub fn limits(&self) -> ReachLimits {
         let c = &self.cfg;
-        let limits = ReachLimits {
+        ReachLimits {
             max_baseline_ratio: c.max_baseline_ratio,
             max_rotation_rad: c.max_rotation_rad,
             min_overlap: c.min_overlap,
-        };
-        self.closest_within(t_world_cam, border_px, excluded, &limits)
+        }
     }
 
     /// [`KeyframeStore::closest`] within other limits than `[reuse]`'s.

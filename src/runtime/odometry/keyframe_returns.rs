@@ -147,7 +147,7 @@ impl Odometry {
             _ => Isometry3::identity(),
         };
         let border_px = self.cfg.tracking.border_px;
-        let (b, r) = (&self.cfg.bootstrap, &self.cfg.reuse);
+        let b = &self.cfg.bootstrap;
         let limits = if after_loss {
             ReachLimits {
                 max_baseline_ratio: b.relocalise_max_baseline_ratio,
@@ -155,11 +155,7 @@ impl Odometry {
                 min_overlap: b.relocalise_min_overlap,
             }
         } else {
-            ReachLimits {
-                max_baseline_ratio: r.max_baseline_ratio,
-                max_rotation_rad: r.max_rotation_rad,
-                min_overlap: r.min_overlap,
-            }
+            self.store.limits()
         };
         self.store
             .closest_seen_from(|id| change(id) * t_world_cam, border_px, excluded, &limits)

@@ -97,9 +97,11 @@ impl LoopLink {
             let (jobs, job_rx) = bounded::<LoopJob>(QUEUE_LEN);
             let (report_tx, reports) = bounded::<LoopReport>(QUEUE_LEN);
             let mut closer = closer;
+            let nice = cfg.thread_nice;
             std::thread::Builder::new()
                 .name("loop-closure".into())
                 .spawn(move || {
+                    crate::runtime::thread_priority::lower_current_thread(nice);
                     for job in job_rx {
                         run(&mut closer, job);
                         let mut by_keyframe = HashMap::new();
