@@ -247,13 +247,8 @@ impl LoopCloser {
         }
     }
 
-    /// The correction of the odometry's world as it was when keyframe `id` was started (the
-    /// graph's pose of it over the odometry's): `None` for a keyframe the closer does not know.
-    pub fn correction_of(&self, id: u32) -> Option<Isometry3<f64>> {
-        self.entries.get(&id).map(|e| self.graph.correction(e.node))
-    }
-
-    /// Every keyframe's [`correction_of`](Self::correction_of), into `out` (cleared first).
+    /// Every keyframe's correction of the odometry's world (the graph's pose of it over the
+    /// odometry's when it was started), by keyframe id, into `out` (cleared first).
     pub fn corrections_into(&self, out: &mut HashMap<u32, Isometry3<f64>>) {
         out.clear();
         let graph = &self.graph;

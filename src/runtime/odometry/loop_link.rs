@@ -76,7 +76,7 @@ pub(super) struct LoopLink {
     runner: Runner,
     /// The newest keyframe's correction.
     correction: Isometry3<f64>,
-    /// Every keyframe's correction (`LoopCloser::correction_of`).
+    /// Every keyframe's correction (`LoopCloser::corrections_into`).
     by_keyframe: HashMap<u32, Isometry3<f64>>,
     /// The correction last applied to the published pose.
     published: Isometry3<f64>,
