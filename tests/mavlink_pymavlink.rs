@@ -6,33 +6,14 @@
 //! pymavlink is a test requirement (`.ci/requirements.txt`, installed by `.ci/run`): without it
 //! these tests fail, they do not skip.
 
+mod pymavlink;
 mod scratch;
+
+use pymavlink::{peer_script, require_pymavlink};
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-
-fn workspace_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn require_pymavlink() {
-    let out = Command::new("python3")
-        .args([
-            "-c",
-            "import os; os.environ['MAVLINK20']='1'; from pymavlink import mavutil",
-        ])
-        .output();
-    match out {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => panic!(
-            "pymavlink is not importable by python3 ({}): run `bash .ci/run` (CI installs the \
-             Python test peers from .ci/requirements.txt)",
-            String::from_utf8_lossy(&o.stderr).trim()
-        ),
-        Err(e) => panic!("cannot run python3 ({e}): run `bash .ci/run` to install the test peers"),
-    }
-}
 
 /// 2 s at 100 Hz of smooth 6-DoF motion (positions within 2 m so f32 keeps 1e-6), EuRoC CSV.
 fn write_trajectory(dir: &Path) -> PathBuf {
@@ -69,7 +50,7 @@ fn run_pair(name: &str, listener_args: &[&str], play_args: &[&str]) -> serde_jso
     let dir = scratch::dir(&format!("mavlink-{name}"));
     std::fs::create_dir_all(&dir).unwrap();
     let traj = write_trajectory(&dir);
-    let script = workspace_root().join("tests/peers/mavlink_listener.py");
+    let script = peer_script("mavlink_listener.py");
     let mut listener = Command::new("python3")
         .arg(&script)
         .arg("--trajectory")

@@ -1,5 +1,6 @@
 //! `vidslam demo`: simulate the built-in flight, run the full odometry over it, evaluate.
 
+use super::mavlink::MavlinkOutputArgs;
 use super::replay::{DepthArg, MappingPosesArg, ReplayArgs, StartArg, run_with};
 use crate::runtime::Config;
 use crate::sim::{ImuSource, SimConfig, TrajectorySource, generate};
@@ -249,6 +250,8 @@ fn run_one(
         cover_lens: Vec::new(),
         uncover_s: 0.0,
         quiet: a.quiet,
+        mavlink: None,
+        mavlink_output: MavlinkOutputArgs::default(),
     };
     let started = std::time::Instant::now();
     let report = run_with(&args, cfg)?;

@@ -151,6 +151,18 @@ pub struct MavlinkOutputArgs {
     pub timesync_max_rtt_ms: f64,
 }
 
+impl Default for MavlinkOutputArgs {
+    /// The command line's defaults (one source: the `#[arg]` attributes above).
+    fn default() -> Self {
+        #[derive(clap::Parser)]
+        struct Defaults {
+            #[command(flatten)]
+            output: MavlinkOutputArgs,
+        }
+        <Defaults as clap::Parser>::parse_from(["vidslam"]).output
+    }
+}
+
 impl MavlinkOutputArgs {
     /// The sender configuration for `endpoint`; errors name the offending flag.
     pub fn sender_config(&self, endpoint: Endpoint) -> anyhow::Result<SenderConfig> {
@@ -341,6 +353,18 @@ mod tests {
     use super::*;
     use crate::dataset::StampedPose;
     use nalgebra::UnitQuaternion;
+
+    #[test]
+    fn the_output_defaults_are_the_command_lines() {
+        let d = MavlinkOutputArgs::default();
+        assert_eq!((d.rate_hz, d.system_id, d.component_id), (30.0, 1, 197));
+        assert_eq!(d.mount_rpy_deg, MountRpyDeg([180.0, 0.0, 0.0]));
+        assert!(d.position_std_m.is_none());
+        assert!(
+            d.sender_config("udpout:127.0.0.1:14550".parse().unwrap())
+                .is_ok()
+        );
+    }
 
     /// Constant velocity (1, 2, 0) m/s and constant yaw rate 0.5 rad/s, 100 Hz, 1 s.
     fn constant_twist(gap_after: Option<usize>) -> Trajectory {

@@ -1,14 +1,19 @@
 //! `vidslam replay`: run the odometry over a recorded ASL/EuRoC dataset and evaluate it.
 
+use crate::cli::mavlink::MavlinkOutputArgs;
 use crate::dataset::{AslDataset, TrajectoryFormat};
 use crate::eval::imu_consistency::implied_accel_bias;
 use crate::eval::plot_report;
+use crate::output::{Endpoint, MavlinkSender};
+use crate::runtime::fc_sample::fc_sample;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
+use crate::runtime::odometry::OdometryFrame;
 use crate::runtime::odometry::adjustments_csv;
-use crate::runtime::replay::StartMode;
+use crate::runtime::replay::{FrameObserver, StartMode, replay_observed};
 use crate::runtime::replay_files::{frames_csv, write_ply};
 use crate::runtime::scale_observer::imu_scale_csv;
-use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
+use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, trajectory};
+use crate::time::{TimeNs, host_monotonic_now};
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -67,6 +72,16 @@ pub struct ReplayArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Stream the odometry to a flight controller as it runs, as `vidslam mavlink play` does
+    /// (udpout:HOST:PORT or udpin:HOST:PORT): every valid frame's published pose, velocity, rate
+    /// and covariance as ODOMETRY #331, `reset_counter` + 1 at every re-initialisation and every
+    /// jump of the loop closer's correction, quality -1 while lost. Offline the frames are
+    /// stamped on the host clock from the start at the dataset's pace and sent as fast as the
+    /// socket takes them; with --realtime as they come.
+    #[arg(long, value_name = "ENDPOINT", help_heading = "MAVLink output")]
+    pub mavlink: Option<Endpoint>,
+    #[command(flatten, next_help_heading = "MAVLink output")]
+    pub mavlink_output: MavlinkOutputArgs,
 }
 
 /// `START_S:DURATION_S`, both non-negative seconds.
@@ -168,12 +183,30 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         );
         b
     };
-    let out = replay(&a.dir, &opts, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    })
+    let mut fc = a
+        .mavlink
+        .as_ref()
+        .map(|to| FcOutput::start(&a.mavlink_output, to, a.realtime))
+        .transpose()?;
+    let mut send = |f: &OdometryFrame| {
+        if let Some(fc) = fc.as_mut() {
+            fc.push(f);
+        }
+    };
+    let out = replay_observed(
+        &a.dir,
+        &opts,
+        &mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        },
+        a.mavlink.is_some().then_some(&mut send as FrameObserver),
+    )
     .with_context(|| format!("replaying {}", a.dir.display()))?;
     bar.finish_and_clear();
+    if let Some(fc) = fc {
+        fc.finish()?;
+    }
 
     let est = trajectory(&out);
     if !out.mapping.keyframe_maps.is_empty() {
@@ -248,6 +281,56 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     print!("{}", report.to_table());
     println!("wrote {}, {}", traj_path.display(), json_path.display());
     Ok(report)
+}
+
+/// The flight controller's side of a replay (`--mavlink`): the sender, and the host time the
+/// first frame is stamped at.
+struct FcOutput {
+    sender: MavlinkSender,
+    realtime: bool,
+    /// (first frame's dataset time, host time it is stamped at).
+    origin: Option<(TimeNs, TimeNs)>,
+    to: Endpoint,
+}
+
+impl FcOutput {
+    fn start(args: &MavlinkOutputArgs, to: &Endpoint, realtime: bool) -> anyhow::Result<Self> {
+        let config = args.sender_config(to.clone())?;
+        let sender = MavlinkSender::start(config)
+            .with_context(|| format!("starting the MAVLink sender towards {to}"))?;
+        Ok(FcOutput {
+            sender,
+            realtime,
+            origin: None,
+            to: to.clone(),
+        })
+    }
+
+    fn push(&mut self, f: &OdometryFrame) {
+        let t = f.result.t;
+        let (t0, host0) = *self.origin.get_or_insert((t, host_monotonic_now()));
+        if let Some(s) = fc_sample(f, host0.add_ns(t.ns_since(t0))) {
+            if self.realtime {
+                self.sender.push(s);
+            } else {
+                self.sender.push_blocking(s);
+            }
+        }
+    }
+
+    /// Stops the sender; prints what it sent, and fails if frames were sent to nobody.
+    fn finish(self) -> anyhow::Result<()> {
+        let last_error = self.sender.last_send_error();
+        let stats = self.sender.finish();
+        eprintln!("mavlink: {}", stats.summary());
+        if let Some(e) = last_error {
+            eprintln!("mavlink: last send error: {e}");
+        }
+        if self.origin.is_some() && stats.pose_samples_sent == 0 {
+            anyhow::bail!("no pose message could be sent to {}", self.to);
+        }
+        Ok(())
+    }
 }
 
 fn depth_name(d: DepthArg) -> &'static str {

@@ -2,6 +2,7 @@
 
 pub mod adjust_check;
 pub mod config;
+pub mod fc_sample;
 pub mod guessed_keyframe;
 pub mod keyframe_builder;
 pub mod keyframe_bundle;

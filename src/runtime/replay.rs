@@ -10,7 +10,7 @@ use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
 use super::odometry::{
-    BootstrapConfig, FrameTimes, Odometry, OdometryConfig, OdometryStats, Phase, Rig,
+    BootstrapConfig, FrameTimes, Odometry, OdometryConfig, OdometryFrame, OdometryStats, Phase, Rig,
 };
 use super::scale_observer::ScaleObserverConfig;
 use super::thread_priority::RealtimeGuard;
@@ -212,19 +212,39 @@ impl ReplayOutput {
 /// Progress callback: `(frames done, frames total)`.
 pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
 
+/// Observer of the full odometry's frames as they come out (e.g. the MAVLink output): called
+/// for every frame, valid or not, right after [`Odometry::push_frame`].
+pub type FrameObserver<'a> = &'a mut dyn FnMut(&OdometryFrame);
+
 /// Replays `dir` with `opts`; `progress` is called after every frame.
 pub fn replay(
     dir: &Path,
     opts: &ReplayOptions,
     progress: Progress,
 ) -> Result<ReplayOutput, ReplayError> {
+    replay_observed(dir, opts, progress, None)
+}
+
+/// [`replay`], with `observer` given every frame of the full odometry as it comes out (with
+/// `--depth gt` there is no odometry to observe: an error).
+pub fn replay_observed(
+    dir: &Path,
+    opts: &ReplayOptions,
+    progress: Progress,
+    observer: Option<FrameObserver>,
+) -> Result<ReplayOutput, ReplayError> {
     match opts.depth {
+        DepthSource::GroundTruth if observer.is_some() => Err(ReplayError::Input(
+            "the odometry's frames (e.g. --mavlink) come from the full odometry; --depth gt \
+             tracks alone"
+                .into(),
+        )),
         DepthSource::GroundTruth if opts.mapping_true_view_poses => Err(ReplayError::Input(
             "--mapping-poses gt poses the semidense mapper's views; --depth gt has no mapper"
                 .into(),
         )),
         DepthSource::GroundTruth => replay_gt_depth(dir, opts, progress),
-        DepthSource::Semidense => replay_full(dir, opts, progress),
+        DepthSource::Semidense => replay_full(dir, opts, progress, observer),
     }
 }
 
@@ -290,6 +310,7 @@ fn replay_full(
     dir: &Path,
     opts: &ReplayOptions,
     progress: Progress,
+    mut observer: Option<FrameObserver>,
 ) -> Result<ReplayOutput, ReplayError> {
     let ds = AslDataset::open(dir)?;
     // The ground truth is read once, for whichever option needs it.
@@ -370,6 +391,9 @@ fn replay_full(
             }
         }
         let f = odo.push_frame(rec.t, img);
+        if let Some(o) = observer.as_mut() {
+            o(&f);
+        }
         if f.valid {
             out.frames.push(f.result);
             out.phases.push(f.phase);

@@ -151,6 +151,10 @@ pub struct OdometryFrame {
     /// Incremented whenever the loop closer's correction of the published pose changed (the
     /// pose jumps: MAVLink `reset_counter` counts these too).
     pub loop_corrections: u32,
+    /// Angular rate of the body at the frame, body (IMU) coordinates, rad/s: the last gyro
+    /// sample at or before the frame (turned by `[gyro_alignment]`) less the frame's gyro bias —
+    /// what MAVLink ODOMETRY's `rollspeed`/`pitchspeed`/`yawspeed` carry. Zero before any sample.
+    pub omega_body_rad_s: Vector3<f64>,
     /// The tracking thread's wall time on this frame and where it went.
     pub times: FrameTimes,
 }
@@ -617,12 +621,22 @@ impl Odometry {
             f.loop_corrections = link.corrections;
             self.stats.loop_closure = Some(link.stats());
         }
+        f.omega_body_rad_s = self.body_rate_rad_s(t, &f.result.state.bias.gyro_rad_s);
         self.times.total_s = started.elapsed().as_secs_f64();
         self.times.cpu_s = cpu_started
             .zip(thread_cpu_time_s())
             .map(|(a, b)| (b - a).max(0.0));
         f.times = self.times;
         f
+    }
+
+    /// The last (corrected) gyro sample at or before `t` less `gyro_bias_rad_s`; zero if none.
+    fn body_rate_rad_s(&self, t: TimeNs, gyro_bias_rad_s: &Vector3<f64>) -> Vector3<f64> {
+        self.imu
+            .iter()
+            .rev()
+            .find(|s| s.t <= t)
+            .map_or_else(Vector3::zeros, |s| s.gyro_rad_s - gyro_bias_rad_s)
     }
 
     fn process_frame(&mut self, t: TimeNs, mut image: Image<u8>) -> OdometryFrame {
@@ -658,6 +672,7 @@ impl Odometry {
                     valid: false,
                     resets: self.stats.resets,
                     loop_corrections: 0,
+                    omega_body_rad_s: Vector3::zeros(),
                     times: FrameTimes::default(),
                 };
             }
@@ -958,6 +973,7 @@ impl Odometry {
             valid: true,
             resets: self.stats.resets,
             loop_corrections: 0,
+            omega_body_rad_s: Vector3::zeros(),
             times: FrameTimes::default(),
         }
     }
