@@ -34,7 +34,8 @@ use std::collections::HashMap;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LoopClosureConfig {
-    /// Correct the published pose by loop closures.
+    /// Correct the published pose by loop closures (on; each jump of the correction goes to
+    /// the flight controller as MAVLink `reset_counter` + 1).
     pub enabled: bool,
     /// `[loop_closure.features]`: corners and descriptors of each keyframe's image.
     pub features: FeatureConfig,
@@ -110,7 +111,7 @@ pub struct LoopClosureConfig {
 impl Default for LoopClosureConfig {
     fn default() -> Self {
         LoopClosureConfig {
-            enabled: false,
+            enabled: true,
             features: FeatureConfig::default(),
             matching: MatchConfig::default(),
             pnp: PnpConfig::default(),
