@@ -178,6 +178,11 @@ pub struct LoopClosureStats {
     /// Times the published pose jumped by a new correction (the odometry's count; MAVLink
     /// `reset_counter` must count them).
     pub published_jumps: u32,
+    /// Those jumps' size at the body (the published position moved by the change of correction),
+    /// m: mean and max; and the largest turn, rad.
+    pub published_jump_m_mean: f64,
+    pub published_jump_m_max: f64,
+    pub published_jump_rad_max: f64,
     /// Returns to stored keyframes started from the graph's placement (the odometry's count,
     /// `guide_returns`).
     pub guided_returns: usize,

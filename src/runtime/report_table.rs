@@ -213,6 +213,17 @@ impl ReplayReport {
                     }
                 ),
             );
+            row(
+                "published pose jumps",
+                format!(
+                    "{} (MAVLink reset_counter steps), at the body mean/max {:.1} / {:.1} cm, \
+                     turn max {:.2}°",
+                    l.published_jumps,
+                    l.published_jump_m_mean * 100.0,
+                    l.published_jump_m_max * 100.0,
+                    l.published_jump_rad_max.to_degrees()
+                ),
+            );
             if l.guided_returns > 0 {
                 row(
                     "guided returns",

@@ -15,7 +15,7 @@ use crate::loop_closure::closer::{LoopCloser, LoopClosureConfig, LoopClosureStat
 use crate::mapping::semidense::SemidenseMap;
 use crate::tracking::Keyframe;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3, Vector3};
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -84,6 +84,10 @@ pub(super) struct LoopLink {
     /// Times the published pose's correction changed (a jump the flight controller must be told
     /// of: MAVLink `reset_counter`).
     pub(super) corrections: u32,
+    /// Sum and max of the jumps' size at the body, m, and the largest turn, rad.
+    jump_m_sum: f64,
+    jump_m_max: f64,
+    jump_rad_max: f64,
     /// Jobs dropped because the queue was full (real time).
     jobs_dropped: usize,
     /// Returns to stored keyframes started from the graph's placement.
@@ -127,6 +131,9 @@ impl LoopLink {
             published: Isometry3::identity(),
             stats: LoopClosureStats::default(),
             corrections: 0,
+            jump_m_sum: 0.0,
+            jump_m_max: 0.0,
+            jump_rad_max: 0.0,
             jobs_dropped: 0,
             guided_returns: 0,
         }
@@ -186,12 +193,24 @@ impl LoopLink {
 
     /// The correction applied to the published pose while keyframe `tracked` is tracked
     /// ([`Self::correction_for`]); counted as a jump if it moves the published pose by more than
-    /// [`JUMP_M`] or [`JUMP_RAD`] from the last one applied.
-    pub(super) fn publish(&mut self, tracked: Option<u32>) -> Isometry3<f64> {
+    /// [`JUMP_M`] or [`JUMP_RAD`] from the last one applied, and the jump measured where the
+    /// body is (`p_world_m`, the odometry's position the correction applies to).
+    pub(super) fn publish(
+        &mut self,
+        tracked: Option<u32>,
+        p_world_m: &Vector3<f64>,
+    ) -> Isometry3<f64> {
         let c = self.correction_for(tracked);
         let d = self.published.inverse() * c;
         if d.translation.vector.norm() > JUMP_M || d.rotation.angle() > JUMP_RAD {
             self.corrections += 1;
+            let p = Point3::from(*p_world_m);
+            let jump_m = (c * p - self.published * p).norm();
+            if jump_m.is_finite() {
+                self.jump_m_sum += jump_m;
+                self.jump_m_max = self.jump_m_max.max(jump_m);
+            }
+            self.jump_rad_max = self.jump_rad_max.max(d.rotation.angle());
         }
         self.published = c;
         c
@@ -213,6 +232,9 @@ impl LoopLink {
         LoopClosureStats {
             jobs_dropped: self.jobs_dropped,
             published_jumps: self.corrections,
+            published_jump_m_mean: self.jump_m_sum / f64::from(self.corrections.max(1)),
+            published_jump_m_max: self.jump_m_max,
+            published_jump_rad_max: self.jump_rad_max,
             guided_returns: self.guided_returns,
             ..self.stats.clone()
         }
@@ -300,13 +322,22 @@ mod tests {
         assert!(close(&link.world_change(2, &now), &Isometry3::identity()));
         assert_eq!(link.world_change(9, &now), Isometry3::identity());
         assert_eq!(link.world_change(3, &now), Isometry3::identity());
-        // Each change of the published correction is one jump; the same one again is none.
-        assert!(close(&link.publish(Some(2)), &c2));
-        link.publish(Some(2));
+        // Each change of the published correction is one jump; the same one again is none. The
+        // jumps are measured where the body is: identity → c2, c2 → c1, c1 → c2.
+        let body = Vector3::new(2.0, 1.0, 0.5);
+        assert!(close(&link.publish(Some(2), &body), &c2));
+        link.publish(Some(2), &body);
         assert_eq!(link.corrections, 1);
-        link.publish(Some(1));
-        link.publish(Some(2));
+        link.publish(Some(1), &body);
+        link.publish(Some(2), &body);
         assert_eq!(link.corrections, 3);
-        assert_eq!(link.stats().published_jumps, 3);
+        let stats = link.stats();
+        assert_eq!(stats.published_jumps, 3);
+        let b = nalgebra::Point3::from(body);
+        let first_m = (c2 * b - b).norm();
+        let switch_m = (c1 * b - c2 * b).norm();
+        assert!((stats.published_jump_m_mean - (first_m + 2.0 * switch_m) / 3.0).abs() < 1e-12);
+        assert!((stats.published_jump_m_max - first_m.max(switch_m)).abs() < 1e-12);
+        assert!((stats.published_jump_rad_max - 0.15).abs() < 1e-12);
     }
 }

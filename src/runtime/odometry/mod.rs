@@ -613,7 +613,7 @@ impl Odometry {
         let mut f = self.process_frame(t, image);
         if let Some(link) = &mut self.loop_closer {
             if self.cfg.loop_closure.correct_published_pose {
-                let c = link.publish(self.tracked_against);
+                let c = link.publish(self.tracked_against, &f.result.state.nav.p_world_m);
                 if f.valid {
                     f.result.state = f.result.state.moved_by_world(&c);
                 }
