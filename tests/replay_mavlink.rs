@@ -4,7 +4,8 @@
 //! ODOMETRY message it decoded is compared with what the replay wrote itself (trajectory.tum,
 //! frames.csv, report.json): one message per valid frame, the published pose in the flight
 //! controller's FRD frames, the frames' spacing in `time_usec`, quality -1 exactly while lost,
-//! and `reset_counter` ending at the re-initialisations plus the loop closer's jumps.
+//! and `reset_counter` ending at the re-initialisations plus the loop closer's jumps beyond
+//! `[loop_closure] reset_min_jump_m`.
 //!
 //! pymavlink is a test requirement (`.ci/requirements.txt`, installed by `.ci/run`): without it
 //! this test fails, it does not skip.
@@ -184,7 +185,7 @@ fn the_replay_streams_every_valid_frame_with_its_resets_to_a_pymavlink_peer() {
         last_reset = r;
     }
     let resets = rep["resets"].as_i64().unwrap();
-    let jumps = rep["loop_closure"]["published_jumps"].as_i64().unwrap();
+    let jumps = rep["loop_closure"]["reset_jumps"].as_i64().unwrap();
     assert!(resets >= 1, "the covered lens is a reset: {rep}");
     assert_eq!(
         last_reset,

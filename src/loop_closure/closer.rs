@@ -97,6 +97,14 @@ pub struct LoopClosureConfig {
     /// Apply the graph's correction to the published pose (else the loops act only through
     /// `guide_returns`).
     pub correct_published_pose: bool,
+    /// A change of the published correction is signalled to the flight controller as a reset
+    /// (MAVLink `reset_counter` + 1) once it moves the published pose, where the body is, by more
+    /// than this from the correction last signalled, m (or turns it by more than
+    /// `reset_min_jump_rad`). Smaller steps reach it as measurements (a centimetre is within any
+    /// vision noise an estimator fuses with, e.g. PX4's `EKF2_EVP_NOISE` 0.1 m), and the unsignalled
+    /// offset never exceeds this. 0: every change is a reset.
+    pub reset_min_jump_m: f64,
+    pub reset_min_jump_rad: f64,
     /// Real time: the loop closer's thread raises its nice value by this much (Linux; 0 = the
     /// tracker's). Above `[bootstrap] background_nice`: a loop can wait, the mapper's next map is
     /// what the tracker waits for (at nice 0 the closer's thread delayed the mapper on two cores
@@ -133,6 +141,8 @@ impl Default for LoopClosureConfig {
             odometry_std_from_rest: true,
             guide_returns: false,
             correct_published_pose: true,
+            reset_min_jump_m: 0.05,
+            reset_min_jump_rad: 0.035,
             thread_nice: 15,
             iterations: 10,
             max_keyframes: 2000,
@@ -175,14 +185,16 @@ pub struct LoopClosureStats {
     pub final_correction_rad: f64,
     /// Jobs the odometry dropped because the loop closer's queue was full (real time).
     pub jobs_dropped: usize,
-    /// Times the published pose jumped by a new correction (the odometry's count; MAVLink
-    /// `reset_counter` must count them).
+    /// Times the published pose jumped by a new correction (the odometry's count; those beyond
+    /// `reset_min_jump_m` are `reset_jumps`).
     pub published_jumps: u32,
     /// Those jumps' size at the body (the published position moved by the change of correction),
     /// m: mean and max; and the largest turn, rad.
     pub published_jump_m_mean: f64,
     pub published_jump_m_max: f64,
     pub published_jump_rad_max: f64,
+    /// The jumps signalled as resets (`reset_min_jump_m`; MAVLink `reset_counter` steps).
+    pub reset_jumps: u32,
     /// Returns to stored keyframes started from the graph's placement (the odometry's count,
     /// `guide_returns`).
     pub guided_returns: usize,

@@ -4,8 +4,9 @@
 //! the reset epoch.
 //!
 //! The epoch counts every discontinuity of the published pose: re-initialisations after a loss
-//! ([`OdometryFrame::resets`]) and the loop closer's jumps of the published pose
-//! ([`OdometryFrame::loop_corrections`]); the sender turns each change into MAVLink
+//! ([`OdometryFrame::resets`]) and the loop closer's jumps of the published pose beyond
+//! `[loop_closure] reset_min_jump_m` ([`OdometryFrame::loop_corrections`]); the sender turns each
+//! change into MAVLink
 //! `reset_counter` + 1, so the flight controller's estimator resets its vision fusion instead of
 //! taking a jump as motion.
 

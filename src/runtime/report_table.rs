@@ -216,9 +216,10 @@ impl ReplayReport {
             row(
                 "published pose jumps",
                 format!(
-                    "{} (MAVLink reset_counter steps), at the body mean/max {:.1} / {:.1} cm, \
-                     turn max {:.2}°",
+                    "{} ({} beyond reset_min_jump: MAVLink reset_counter steps), at the body \
+                     mean/max {:.1} / {:.1} cm, turn max {:.2}°",
                     l.published_jumps,
+                    l.reset_jumps,
                     l.published_jump_m_mean * 100.0,
                     l.published_jump_m_max * 100.0,
                     l.published_jump_rad_max.to_degrees()

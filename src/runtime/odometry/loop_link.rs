@@ -81,9 +81,15 @@ pub(super) struct LoopLink {
     /// The correction last applied to the published pose.
     published: Isometry3<f64>,
     stats: LoopClosureStats,
-    /// Times the published pose's correction changed (a jump the flight controller must be told
-    /// of: MAVLink `reset_counter`).
+    /// Times the published pose's correction changed.
     pub(super) corrections: u32,
+    /// Of those, the jumps signalled to the flight controller (MAVLink `reset_counter`): the
+    /// published pose moved beyond `reset_min_jump_m` / `_rad` from `signalled`.
+    pub(super) resets: u32,
+    /// The correction last signalled as a reset.
+    signalled: Isometry3<f64>,
+    /// `[loop_closure] reset_min_jump_m`, `reset_min_jump_rad`.
+    reset_min_jump: (f64, f64),
     /// Sum and max of the jumps' size at the body, m, and the largest turn, rad.
     jump_m_sum: f64,
     jump_m_max: f64,
@@ -131,6 +137,9 @@ impl LoopLink {
             published: Isometry3::identity(),
             stats: LoopClosureStats::default(),
             corrections: 0,
+            resets: 0,
+            signalled: Isometry3::identity(),
+            reset_min_jump: (cfg.reset_min_jump_m, cfg.reset_min_jump_rad),
             jump_m_sum: 0.0,
             jump_m_max: 0.0,
             jump_rad_max: 0.0,
@@ -194,7 +203,9 @@ impl LoopLink {
     /// The correction applied to the published pose while keyframe `tracked` is tracked
     /// ([`Self::correction_for`]); counted as a jump if it moves the published pose by more than
     /// [`JUMP_M`] or [`JUMP_RAD`] from the last one applied, and the jump measured where the
-    /// body is (`p_world_m`, the odometry's position the correction applies to).
+    /// body is (`p_world_m`, the odometry's position the correction applies to); a reset for the
+    /// flight controller once it has moved the pose beyond `reset_min_jump_m` / `_rad` from the
+    /// correction last signalled.
     pub(super) fn publish(
         &mut self,
         tracked: Option<u32>,
@@ -211,6 +222,13 @@ impl LoopLink {
                 self.jump_m_max = self.jump_m_max.max(jump_m);
             }
             self.jump_rad_max = self.jump_rad_max.max(d.rotation.angle());
+            let (min_m, min_rad) = self.reset_min_jump;
+            let since = self.signalled.inverse() * c;
+            let moved_m = (c * p - self.signalled * p).norm();
+            if !(moved_m <= min_m && since.rotation.angle() <= min_rad) {
+                self.resets += 1;
+                self.signalled = c;
+            }
         }
         self.published = c;
         c
@@ -235,6 +253,7 @@ impl LoopLink {
             published_jump_m_mean: self.jump_m_sum / f64::from(self.corrections.max(1)),
             published_jump_m_max: self.jump_m_max,
             published_jump_rad_max: self.jump_rad_max,
+            reset_jumps: self.resets,
             guided_returns: self.guided_returns,
             ..self.stats.clone()
         }
@@ -333,11 +352,44 @@ mod tests {
         assert_eq!(link.corrections, 3);
         let stats = link.stats();
         assert_eq!(stats.published_jumps, 3);
+        assert_eq!(stats.reset_jumps, 3, "each beyond the default 5 cm");
         let b = nalgebra::Point3::from(body);
         let first_m = (c2 * b - b).norm();
         let switch_m = (c1 * b - c2 * b).norm();
         assert!((stats.published_jump_m_mean - (first_m + 2.0 * switch_m) / 3.0).abs() < 1e-12);
         assert!((stats.published_jump_m_max - first_m.max(switch_m)).abs() < 1e-12);
         assert!((stats.published_jump_rad_max - 0.15).abs() < 1e-12);
+    }
+
+    /// Jumps of the published pose are signalled as resets only once the pose has moved beyond
+    /// the threshold from the correction last signalled: small steps add up to one reset.
+    #[test]
+    fn small_jumps_add_up_to_a_reset_beyond_the_threshold() {
+        let cfg = LoopClosureConfig {
+            reset_min_jump_m: 0.05,
+            reset_min_jump_rad: 0.035,
+            ..LoopClosureConfig::default()
+        };
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let body = Vector3::new(1.0, 2.0, 1.0);
+        let step = |x_m: f64| Isometry3::new(Vector3::new(x_m, 0.0, 0.0), Vector3::zeros());
+        // 2 cm at a time: unsignalled at 2 and 4 cm, a reset at 6 cm, then again from there.
+        for (k, x_m) in [0.02, 0.04, 0.06, 0.08, 0.10, 0.12].iter().enumerate() {
+            link.correction = step(*x_m);
+            link.publish(None, &body);
+            let want = match k {
+                0 | 1 => 0,
+                2..=4 => 1,
+                _ => 2,
+            };
+            assert_eq!(link.resets, want, "after {x_m} m");
+        }
+        assert_eq!(link.corrections, 6);
+        // A turn alone: 0.03 rad about the vertical is below 0.035 rad but moves a body 2.2 m
+        // from the origin by 7 cm: a reset.
+        link.correction = link.signalled * Isometry3::new(Vector3::zeros(), Vector3::z() * 0.03);
+        link.publish(None, &body);
+        assert_eq!(link.resets, 3);
+        assert_eq!(link.stats().reset_jumps, 3);
     }
 }

@@ -148,8 +148,9 @@ pub struct OdometryFrame {
     pub valid: bool,
     /// Incremented at every re-initialisation after a loss (MAVLink `reset_counter`).
     pub resets: u32,
-    /// Incremented whenever the loop closer's correction of the published pose changed (the
-    /// pose jumps: MAVLink `reset_counter` counts these too).
+    /// Incremented whenever the loop closer's correction moved the published pose beyond
+    /// `[loop_closure] reset_min_jump_m` / `_rad` since the last time (MAVLink `reset_counter`
+    /// counts these too).
     pub loop_corrections: u32,
     /// Angular rate of the body at the frame, body (IMU) coordinates, rad/s: the last gyro
     /// sample at or before the frame (turned by `[gyro_alignment]`) less the frame's gyro bias —
@@ -618,7 +619,7 @@ impl Odometry {
                     f.result.state = f.result.state.moved_by_world(&c);
                 }
             }
-            f.loop_corrections = link.corrections;
+            f.loop_corrections = link.resets;
             self.stats.loop_closure = Some(link.stats());
         }
         f.omega_body_rad_s = self.body_rate_rad_s(t, &f.result.state.bias.gyro_rad_s);
