@@ -74,8 +74,9 @@ pub struct ReplayArgs {
     pub quiet: bool,
     /// Stream the odometry to a flight controller as it runs, as `vidslam mavlink play` does
     /// (udpout:HOST:PORT or udpin:HOST:PORT): every valid frame's published pose, velocity, rate
-    /// and covariance as ODOMETRY #331, `reset_counter` + 1 at every re-initialisation and every
-    /// jump of the loop closer's correction, quality -1 while lost. Offline the frames are
+    /// and covariance as ODOMETRY #331, `reset_counter` + 1 at every re-initialisation and when
+    /// the loop closer's correction has moved the pose beyond `[loop_closure] reset_min_jump_m`,
+    /// quality -1 while lost. Offline the frames are
     /// stamped on the host clock from the start at the dataset's pace and sent as fast as the
     /// socket takes them; with --realtime as they come.
     #[arg(long, value_name = "ENDPOINT", help_heading = "MAVLink output")]

@@ -34,8 +34,8 @@ use std::collections::HashMap;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LoopClosureConfig {
-    /// Correct the published pose by loop closures (on; each jump of the correction goes to
-    /// the flight controller as MAVLink `reset_counter` + 1).
+    /// Correct the published pose by loop closures (on; its jumps beyond `reset_min_jump_m` go
+    /// to the flight controller as MAVLink `reset_counter` + 1).
     pub enabled: bool,
     /// `[loop_closure.features]`: corners and descriptors of each keyframe's image.
     pub features: FeatureConfig,

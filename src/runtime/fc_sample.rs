@@ -6,9 +6,8 @@
 //! The epoch counts every discontinuity of the published pose: re-initialisations after a loss
 //! ([`OdometryFrame::resets`]) and the loop closer's jumps of the published pose beyond
 //! `[loop_closure] reset_min_jump_m` ([`OdometryFrame::loop_corrections`]); the sender turns each
-//! change into MAVLink
-//! `reset_counter` + 1, so the flight controller's estimator resets its vision fusion instead of
-//! taking a jump as motion.
+//! change into MAVLink `reset_counter` + 1, so the flight controller's estimator resets its vision
+//! fusion instead of taking a jump as motion.
 
 use crate::imu::residual::block;
 use crate::output::frames::pose_covariance_from_body_perturbation;
