@@ -1205,6 +1205,26 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
     );
     assert_eq!(stats.guided_returns, 0);
 
+    // `hold_world_on_probation`: a return to a stored keyframe changes the published pose's
+    // world only once past its probation — the odometry is the same, and a failed return no
+    // longer throws the published pose into the stored keyframe's world and back.
+    let mut held_opts = opts.clone();
+    held_opts.loop_closure.hold_world_on_probation = true;
+    let held = replay(&dir, &held_opts, &mut |_, _| {}).unwrap();
+    let h = held
+        .odometry
+        .loop_closure
+        .clone()
+        .expect("loop closure stats");
+    println!(
+        "held on probation: {} jumps against {} ({} returns, {} failed)",
+        h.published_jumps, stats.published_jumps, o.keyframe_reuses, o.keyframe_reuse_failures
+    );
+    assert_eq!(held.frames.len(), closed.frames.len());
+    assert_eq!(held.odometry.keyframe_reuses, o.keyframe_reuses);
+    assert!(h.published_jumps <= stats.published_jumps);
+    assert!(held.frames.iter().all(|f| f.state.is_finite()));
+
     // `guide_returns`: the returns to stored keyframes are sought and started from the graph's
     // placement of the odometry in each stored keyframe's world, and the published pose is the
     // odometry's own (`correct_published_pose = false`): the loops act on the odometry itself.

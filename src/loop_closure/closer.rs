@@ -108,6 +108,10 @@ pub struct LoopClosureConfig {
     /// offset never exceeds this. 0: every change is a reset.
     pub reset_min_jump_m: f64,
     pub reset_min_jump_rad: f64,
+    /// A return to a stored keyframe changes the world the published pose is corrected in only
+    /// once it passed its probation (`[reuse] probation_frames`): a return that fails within a
+    /// frame or two does not throw the published pose into the stored keyframe's world and back.
+    pub hold_world_on_probation: bool,
     /// Real time: the loop closer's thread raises its nice value by this much (Linux; 0 = the
     /// tracker's). Above `[bootstrap] background_nice`: a loop can wait, the mapper's next map is
     /// what the tracker waits for (at nice 0 the closer's thread delayed the mapper on two cores
@@ -146,6 +150,7 @@ impl Default for LoopClosureConfig {
             correct_published_pose: true,
             reset_min_jump_m: 0.05,
             reset_min_jump_rad: 0.035,
+            hold_world_on_probation: false,
             thread_nice: 15,
             iterations: 10,
             max_keyframes: 2000,

@@ -301,6 +301,9 @@ pub struct Odometry {
     /// The keyframe the newest frame was tracked against (whose world its pose is in: the loop
     /// closer's correction of it is the one to publish it with).
     tracked_against: Option<u32>,
+    /// The keyframe whose loop-closure correction the last frame was published with
+    /// (`[loop_closure] hold_world_on_probation`: not a stored keyframe still on probation).
+    published_world: Option<u32>,
     /// The mapper's map of the tracking keyframe as installed.
     tracking_map: Option<Arc<SemidenseMap>>,
     /// The tracking keyframe includes depthless pixels at a guessed depth.
@@ -499,6 +502,7 @@ impl Odometry {
             kf_started: None,
             tracking_kf: None,
             tracked_against: None,
+            published_world: None,
             tracking_map: None,
             tracking_kf_filled: false,
             last_median_inv_depth: None,
@@ -614,7 +618,12 @@ impl Odometry {
         let mut f = self.process_frame(t, image);
         if let Some(link) = &mut self.loop_closer {
             if self.cfg.loop_closure.correct_published_pose {
-                let c = link.publish(self.tracked_against, &f.result.state.nav.p_world_m);
+                let on_probation =
+                    self.reusing && self.reuse_frames <= self.cfg.reuse.probation_frames;
+                if !(on_probation && self.cfg.loop_closure.hold_world_on_probation) {
+                    self.published_world = self.tracked_against;
+                }
+                let c = link.publish(self.published_world, &f.result.state.nav.p_world_m);
                 if f.valid {
                     f.result.state = f.result.state.moved_by_world(&c);
                 }
