@@ -9,11 +9,10 @@
 mod pymavlink;
 mod scratch;
 
-use pymavlink::{peer_script, require_pymavlink};
+use pymavlink::{Peer, require_pymavlink};
 
-use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 /// 2 s at 100 Hz of smooth 6-DoF motion (positions within 2 m so f32 keeps 1e-6), EuRoC CSV.
 fn write_trajectory(dir: &Path) -> PathBuf {
@@ -50,24 +49,10 @@ fn run_pair(name: &str, listener_args: &[&str], play_args: &[&str]) -> serde_jso
     let dir = scratch::dir(&format!("mavlink-{name}"));
     std::fs::create_dir_all(&dir).unwrap();
     let traj = write_trajectory(&dir);
-    let script = peer_script("mavlink_listener.py");
-    let mut listener = Command::new("python3")
-        .arg(&script)
-        .arg("--trajectory")
-        .arg(&traj)
-        .args(listener_args)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("starting python3 tests/peers/mavlink_listener.py");
-    let mut out = BufReader::new(listener.stdout.take().unwrap());
-    let mut first = String::new();
-    out.read_line(&mut first).unwrap();
-    let port: u16 = first
-        .strip_prefix("PORT ")
-        .and_then(|p| p.trim().parse().ok())
-        .unwrap_or_else(|| panic!("listener did not announce its port: {first:?}"));
+    let mut args: Vec<std::ffi::OsString> = vec!["--trajectory".into(), traj.clone().into()];
+    args.extend(listener_args.iter().map(|a| a.into()));
+    let listener = Peer::start("mavlink_listener.py", &args);
+    let port = listener.port;
 
     let play = Command::new(env!("CARGO_BIN_EXE_vidslam"))
         .args(["mavlink", "play"])
@@ -84,18 +69,8 @@ fn run_pair(name: &str, listener_args: &[&str], play_args: &[&str]) -> serde_jso
         "vidslam mavlink play failed: {play_log}"
     );
 
-    let mut stdin = listener.stdin.take().unwrap();
-    writeln!(stdin, "stop").unwrap();
-    drop(stdin);
-    let mut rest = String::new();
-    std::io::Read::read_to_string(&mut out, &mut rest).unwrap();
-    let status = listener.wait().unwrap();
+    let (status, report) = listener.stop();
     std::fs::remove_dir_all(&dir).ok();
-    let report_line = rest
-        .lines()
-        .find_map(|l| l.strip_prefix("REPORT "))
-        .unwrap_or_else(|| panic!("no REPORT from the listener: {rest}"));
-    let report: serde_json::Value = serde_json::from_str(report_line).unwrap();
     eprintln!("listener report ({name}): {report}");
     let failures = report["failures"].as_array().unwrap();
     assert!(

@@ -13,10 +13,9 @@
 mod pymavlink;
 mod scratch;
 
-use pymavlink::{peer_script, require_pymavlink};
-use std::io::{BufRead, BufReader, Read, Write};
+use pymavlink::{Peer, require_pymavlink};
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 fn vidslam(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_vidslam"))
@@ -76,20 +75,8 @@ fn the_replay_streams_every_valid_frame_with_its_resets_to_a_pymavlink_peer() {
     let cfg = tmp.join("vidslam.toml");
     std::fs::write(&cfg, "[loop_closure]\nenabled = true\n").unwrap();
 
-    let mut peer = Command::new("python3")
-        .arg(peer_script("mavlink_recorder.py"))
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("starting python3 tests/peers/mavlink_recorder.py");
-    let mut peer_out = BufReader::new(peer.stdout.take().unwrap());
-    let mut first = String::new();
-    peer_out.read_line(&mut first).unwrap();
-    let port: u16 = first
-        .strip_prefix("PORT ")
-        .and_then(|p| p.trim().parse().ok())
-        .unwrap_or_else(|| panic!("the peer did not announce its port: {first:?}"));
+    let peer = Peer::start::<&str>("mavlink_recorder.py", &[]);
+    let port = peer.port;
 
     let out = tmp.join("out");
     let cover_start_s = 5.5;
@@ -113,16 +100,8 @@ fn the_replay_streams_every_valid_frame_with_its_resets_to_a_pymavlink_peer() {
     assert!(o.status.success(), "vidslam replay --mavlink failed: {log}");
     assert!(log.contains("mavlink: "), "the sender's summary: {log}");
 
-    writeln!(peer.stdin.take().unwrap(), "stop").unwrap();
-    let mut rest = String::new();
-    peer_out.read_to_string(&mut rest).unwrap();
-    assert!(peer.wait().unwrap().success(), "the peer failed: {rest}");
-    let report: serde_json::Value = serde_json::from_str(
-        rest.lines()
-            .find_map(|l| l.strip_prefix("REPORT "))
-            .unwrap_or_else(|| panic!("no REPORT from the peer: {rest}")),
-    )
-    .unwrap();
+    let (status, report) = peer.stop();
+    assert!(status.success(), "the peer failed: {report}");
     let msgs = report["odometry"].as_array().unwrap();
 
     let traj = read_tum(&out.join("trajectory.tum"));
