@@ -331,16 +331,26 @@ fn play(a: &PlayArgs) -> anyhow::Result<()> {
             sender.push_blocking(s);
         }
     }
+    finish_sender(sender, "mavlink play", &a.to, !samples.is_empty())
+}
+
+/// Stops `sender` and prints what it sent (and its last send error) after `label`; an error if
+/// samples were pushed (`pushed_any`) but no pose message reached `to`.
+pub fn finish_sender(
+    sender: MavlinkSender,
+    label: &str,
+    to: &Endpoint,
+    pushed_any: bool,
+) -> anyhow::Result<()> {
     let last_error = sender.last_send_error();
     let stats = sender.finish();
-    eprintln!("mavlink play: {}", stats.summary());
+    eprintln!("{label}: {}", stats.summary());
     if let Some(e) = last_error {
-        eprintln!("mavlink play: last send error: {e}");
+        eprintln!("{label}: last send error: {e}");
     }
-    if !samples.is_empty() && stats.pose_samples_sent == 0 {
+    if pushed_any && stats.pose_samples_sent == 0 {
         bail!(
-            "no pose message could be sent to {} ({} without a peer, {} send errors)",
-            a.to,
+            "no pose message could be sent to {to} ({} without a peer, {} send errors)",
             stats.not_sent_no_peer,
             stats.send_errors
         );

@@ -1,6 +1,6 @@
 //! `vidslam replay`: run the odometry over a recorded ASL/EuRoC dataset and evaluate it.
 
-use crate::cli::mavlink::MavlinkOutputArgs;
+use crate::cli::mavlink::{MavlinkOutputArgs, finish_sender};
 use crate::dataset::{AslDataset, TrajectoryFormat};
 use crate::eval::imu_consistency::implied_accel_bias;
 use crate::eval::plot_report;
@@ -321,16 +321,7 @@ impl FcOutput {
 
     /// Stops the sender; prints what it sent, and fails if frames were sent to nobody.
     fn finish(self) -> anyhow::Result<()> {
-        let last_error = self.sender.last_send_error();
-        let stats = self.sender.finish();
-        eprintln!("mavlink: {}", stats.summary());
-        if let Some(e) = last_error {
-            eprintln!("mavlink: last send error: {e}");
-        }
-        if self.origin.is_some() && stats.pose_samples_sent == 0 {
-            anyhow::bail!("no pose message could be sent to {}", self.to);
-        }
-        Ok(())
+        finish_sender(self.sender, "mavlink", &self.to, self.origin.is_some())
     }
 }
 

@@ -216,7 +216,8 @@ impl LoopLink {
         if d.translation.vector.norm() > JUMP_M || d.rotation.angle() > JUMP_RAD {
             self.corrections += 1;
             let p = Point3::from(*p_world_m);
-            let jump_m = (c * p - self.published * p).norm();
+            let cp = c * p;
+            let jump_m = (cp - self.published * p).norm();
             if jump_m.is_finite() {
                 self.jump_m_sum += jump_m;
                 self.jump_m_max = self.jump_m_max.max(jump_m);
@@ -224,7 +225,7 @@ impl LoopLink {
             self.jump_rad_max = self.jump_rad_max.max(d.rotation.angle());
             let (min_m, min_rad) = self.reset_min_jump;
             let since = self.signalled.inverse() * c;
-            let moved_m = (c * p - self.signalled * p).norm();
+            let moved_m = (cp - self.signalled * p).norm();
             if !(moved_m <= min_m && since.rotation.angle() <= min_rad) {
                 self.resets += 1;
                 self.signalled = c;

@@ -616,10 +616,9 @@ impl Odometry {
         let cpu_started = thread_cpu_time_s();
         self.times = FrameTimes::default();
         let mut f = self.process_frame(t, image);
+        let on_probation = self.on_probation();
         if let Some(link) = &mut self.loop_closer {
             if self.cfg.loop_closure.correct_published_pose {
-                let on_probation =
-                    self.reusing && self.reuse_frames <= self.cfg.reuse.probation_frames;
                 if !(on_probation && self.cfg.loop_closure.hold_world_on_probation) {
                     self.published_world = self.tracked_against;
                 }
@@ -638,6 +637,12 @@ impl Odometry {
             .map(|(a, b)| (b - a).max(0.0));
         f.times = self.times;
         f
+    }
+
+    /// Tracking a stored keyframe that has not yet passed its probation (`[reuse]
+    /// probation_frames`).
+    fn on_probation(&self) -> bool {
+        self.reusing && self.reuse_frames <= self.cfg.reuse.probation_frames
     }
 
     /// The last (corrected) gyro sample at or before `t` less `gyro_bias_rad_s`; zero if none.
@@ -804,12 +809,12 @@ impl Odometry {
                 // (occlusion, a different exposure, a bad map) or its brightness collapses at any
                 // time: back to the keyframe left — or, if that one is out of view, a new
                 // keyframe from here (`return_min_overlap`).
-                let failed_probation = self.reuse_frames <= r.probation_frames
+                let failed_probation = self.on_probation()
                     && (result.flag == Some(FlagReason::FewInliers)
                         || result.inlier_ratio < r.probation_min_inlier_ratio);
                 let collapsed = self.tracker.brightness_collapsed(&result);
                 let stored_unfit = self.reusing && (failed_probation || collapsed);
-                if !self.reusing || (self.reuse_frames > r.probation_frames && !stored_unfit) {
+                if !self.on_probation() && !stored_unfit {
                     // The stored keyframe passed its probation: the chain is left for good.
                     self.chain_shadow = None;
                 }
