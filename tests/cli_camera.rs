@@ -1,14 +1,13 @@
 //! `vidslam camera` end to end through the built binary.
 
+mod cli;
+
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use vidslam::dataset::shared_data_or_skip;
 
+/// `vidslam ARGS…`: `(succeeded, stdout, stderr)`.
 fn vidslam(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_vidslam"))
-        .args(args)
-        .output()
-        .expect("run vidslam");
+    let out = cli::vidslam(args);
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into(),

@@ -2,17 +2,11 @@
 //! accelerometer bias against the one the ground truth implies among them), clear errors for a
 //! bad configuration and for a dataset without depth.
 
+mod cli;
 mod scratch;
 
+use cli::{text, vidslam};
 use std::path::Path;
-use std::process::Command;
-
-fn vidslam(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vidslam"))
-        .args(args)
-        .output()
-        .expect("run vidslam")
-}
 
 /// `vidslam replay DATA --depth gt --out OUT --quiet` plus `extra`.
 fn replay_gt(data: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
@@ -27,14 +21,6 @@ fn replay_gt(data: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     ];
     args.extend_from_slice(extra);
     vidslam(&args)
-}
-
-fn text(o: &std::process::Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 #[test]

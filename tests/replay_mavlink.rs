@@ -10,27 +10,13 @@
 //! pymavlink is a test requirement (`.ci/requirements.txt`, installed by `.ci/run`): without it
 //! this test fails, it does not skip.
 
+mod cli;
 mod pymavlink;
 mod scratch;
 
+use cli::{text, vidslam};
 use pymavlink::{Peer, require_pymavlink};
 use std::path::Path;
-use std::process::Command;
-
-fn vidslam(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vidslam"))
-        .args(args)
-        .output()
-        .expect("run vidslam")
-}
-
-fn text(o: &std::process::Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 /// `trajectory.tum` rows: `(t_s, [x, y, z])`.
 fn read_tum(path: &Path) -> Vec<(f64, [f64; 3])> {

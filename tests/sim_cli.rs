@@ -1,20 +1,14 @@
 //! `vidslam sim` end to end through the binary: output readable by the dataset reader and by
 //! `vidslam dataset info`, deterministic per seed, refuses to overwrite, clear input errors.
 
+mod cli;
 mod scratch;
 
+use cli::vidslam;
 use std::path::Path;
-use std::process::Command;
 use vidslam::camera::CameraModel;
 use vidslam::dataset::{AslDataset, CameraSensor, write_camera_yaml};
 use vidslam::sim::write::euroc_cam0_t_body_cam;
-
-fn vidslam(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vidslam"))
-        .args(args)
-        .output()
-        .expect("run vidslam")
-}
 
 fn files_under(root: &Path) -> Vec<std::path::PathBuf> {
     let mut out = vec![];
