@@ -169,6 +169,22 @@ fn back_at_a_mapped_place_the_correction_takes_the_drift_out() {
     assert!(err.rotation.angle() < 0.3f64.to_radians(), "{err}");
     let s = closer.stats();
     assert_eq!((s.keyframes, s.loops_closed), (4, 1));
+    // The closure's record: keyframe 3 to 0, measured near the truth, predicted with the drift.
+    let mut closer = closer;
+    let closures = closer.take_closures();
+    assert_eq!(closures.len(), 1);
+    let c = &closures[0];
+    assert_eq!((c.new_id, c.old_id), (3, 0));
+    assert!(c.inliers >= config().min_inliers && c.inlier_ratio >= config().min_inlier_ratio);
+    let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
+    let measured_err = (a.inverse() * truth_3).inverse() * c.t_old_new;
+    assert!(
+        measured_err.translation.vector.norm() < 0.02,
+        "{measured_err}"
+    );
+    let prior_err = (a.inverse() * odometry_3).inverse() * c.prior_t_old_new;
+    assert!(prior_err.translation.vector.norm() < 1e-9, "{prior_err}");
+    assert!(closer.take_closures().is_empty(), "taken once");
 }
 
 /// The odometry edges' deviations scaled (`odometry_std_from_rest`: by the gyro noise the pad

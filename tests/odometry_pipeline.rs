@@ -11,8 +11,9 @@ use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
 use vidslam::runtime::map_depth::{keyframe_depth_errors, median};
 use vidslam::runtime::odometry::{
-    AdjustmentOutcome, OdometryConfig, Phase, TakeoffRefinement, adjustments_csv,
+    AdjustmentOutcome, OdometryConfig, Phase, TakeoffRefinement, adjustments_csv, loop_edge_summary,
 };
+use vidslam::runtime::true_view_poses::TrueCameraPoses;
 use vidslam::runtime::{DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
 use vidslam::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use vidslam::tracking::pose_of;
@@ -1166,6 +1167,20 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
     );
     assert!(plain.odometry.loop_closure.is_none());
     assert!(stats.loops_closed > 0, "{stats:?}");
+    // Every loop is recorded with its keyframes' times (`loops.csv`), and its measured edge is
+    // near the two cameras' true relative pose (the rendered flight's maps are a few percent off).
+    let loops = &closed.odometry.loop_closures;
+    assert_eq!(loops.len(), stats.loops_closed);
+    let ds = AslDataset::open(&dir).unwrap();
+    let truth = TrueCameraPoses::new(
+        ds.ground_truth().unwrap().unwrap().trajectory(),
+        ds.camera.t_body_cam,
+    );
+    let edges = loop_edge_summary(loops, &truth).expect("loops within the ground truth");
+    println!("loop edges against the truth: {edges:?}");
+    assert_eq!(edges.evaluated, loops.len());
+    assert!(loops.iter().all(|r| r.old_t < r.new_t));
+    assert!(edges.edge_m_max < 0.05, "{edges:?}");
     assert_eq!(plain.frames.len(), closed.frames.len());
     let mut moved = 0;
     for (a, b) in plain.frames.iter().zip(&closed.frames) {

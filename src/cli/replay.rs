@@ -8,10 +8,11 @@ use crate::output::{Endpoint, MavlinkSender};
 use crate::runtime::fc_sample::fc_sample;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
 use crate::runtime::odometry::OdometryFrame;
-use crate::runtime::odometry::adjustments_csv;
+use crate::runtime::odometry::{adjustments_csv, loop_edge_summary, loops_csv};
 use crate::runtime::replay::{FrameObserver, StartMode, replay_observed};
 use crate::runtime::replay_files::{frames_csv, write_ply};
 use crate::runtime::scale_observer::imu_scale_csv;
+use crate::runtime::true_view_poses::TrueCameraPoses;
 use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, trajectory};
 use crate::time::{TimeNs, host_monotonic_now};
 use anyhow::Context;
@@ -227,9 +228,10 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         report.mapping_poses = "gt".into();
     }
     let ds = AslDataset::open(&a.dir)?;
-    if let Some(gt) = ds.ground_truth()? {
+    let gt = ds.ground_truth()?;
+    if let Some(gt) = &gt {
         report.evaluate_against(&gt.trajectory(), &est);
-        report.set_velocity_errors(&gt, &est, &out);
+        report.set_velocity_errors(gt, &est, &out);
         let imu: Vec<_> = ds.imu_samples()?.collect::<Result<_, _>>()?;
         if let Some(b) = implied_accel_bias(&gt.states, &imu, IMPLIED_BIAS_WINDOW_S) {
             report.set_implied_accel_bias(b.p50_m_s2);
@@ -246,6 +248,18 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     if !out.odometry.imu_scale.is_empty() {
         let p = a.out.join("imu_scale.csv");
         std::fs::write(&p, imu_scale_csv(&out.odometry.imu_scale))
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    if !out.odometry.loop_closures.is_empty() {
+        let loops = &out.odometry.loop_closures;
+        let truth = gt
+            .as_ref()
+            .map(|g| TrueCameraPoses::new(g.trajectory(), ds.camera.t_body_cam));
+        if let Some(truth) = &truth {
+            report.loop_edges = loop_edge_summary(loops, truth);
+        }
+        let p = a.out.join("loops.csv");
+        std::fs::write(&p, loops_csv(loops, truth.as_ref()))
             .with_context(|| format!("writing {}", p.display()))?;
     }
     if !out.odometry.adjustments.is_empty() {

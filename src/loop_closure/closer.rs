@@ -178,6 +178,22 @@ pub struct KeyframeOutcome {
     pub inliers: usize,
 }
 
+/// One loop closed: the keyframes it joined and what PnP measured (`OUT/loops.csv`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LoopClosure {
+    /// The new keyframe and the stored one it was closed to.
+    pub new_id: u32,
+    pub old_id: u32,
+    /// PnP inliers, their share of the matches and their RMS, px.
+    pub inliers: usize,
+    pub inlier_ratio: f64,
+    pub inlier_rms_px: f64,
+    /// The new camera's pose in the old camera's frame as measured (the loop edge)…
+    pub t_old_new: Isometry3<f64>,
+    /// …and as the graph predicted it before (the drift the loop corrects is between the two).
+    pub prior_t_old_new: Isometry3<f64>,
+}
+
 /// Counters for the report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LoopClosureStats {
@@ -222,6 +238,8 @@ pub struct LoopCloser {
     /// Factor on the odometry edges' standard deviations ([`Self::set_odometry_noise_scale`]).
     odometry_noise_scale: f64,
     stats: LoopClosureStats,
+    /// Loops closed since [`Self::take_closures`] last took them.
+    closures: Vec<LoopClosure>,
 }
 
 /// A position standard deviation `std_m` with `per_m` of the baseline of `t_i_j` added in
@@ -245,7 +263,13 @@ impl LoopCloser {
             node_ids: Vec::new(),
             odometry_noise_scale: 1.0,
             stats: LoopClosureStats::default(),
+            closures: Vec::new(),
         }
+    }
+
+    /// The loops closed since the last call, in order.
+    pub fn take_closures(&mut self) -> Vec<LoopClosure> {
+        std::mem::take(&mut self.closures)
     }
 
     pub fn stats(&self) -> LoopClosureStats {
@@ -506,6 +530,15 @@ impl LoopCloser {
             let summary = self.graph.optimize(self.cfg.iterations);
             self.stats.loops_rejected_by_graph = summary.rejected_loop_edges;
             self.stats.loops_closed += 1;
+            self.closures.push(LoopClosure {
+                new_id: id,
+                old_id: cid,
+                inliers: sol.num_inliers,
+                inlier_ratio: ratio,
+                inlier_rms_px: sol.inlier_rms_px,
+                t_old_new,
+                prior_t_old_new: prior_t_new_old.inverse(),
+            });
             out.closed_to = Some(cid);
             break;
         }

@@ -9,6 +9,7 @@ use crate::eval::stats::{percentile, sorted};
 use crate::eval::velocity::velocity_errors;
 use crate::eval::{EvalOptions, EvalReport, SegmentError, alignment, evaluate};
 use crate::loop_closure::closer::LoopClosureStats;
+use crate::runtime::odometry::LoopEdgeSummary;
 use crate::tracking::{TrackResult, pose_of};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -333,6 +334,11 @@ pub struct ReplayReport {
     /// correction of the published pose at the end (m, rad); absent when it is off.
     #[serde(default)]
     pub loop_closure: Option<LoopClosureStats>,
+    /// The loops' measured edges against the ground truth (`loops.csv`): how many, the median
+    /// and largest translation error, m, the largest rotation error, rad, and the median error of
+    /// the graph's predictions they replaced, m; absent without loops or ground truth.
+    #[serde(default)]
+    pub loop_edges: Option<LoopEdgeSummary>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -593,6 +599,7 @@ impl ReplayReport {
                 .window_gyro_misalignment_rad()
                 .map(|v| [v.x, v.y, v.z].map(f64::to_degrees)),
             loop_closure: out.odometry.loop_closure.clone(),
+            loop_edges: None,
             gyro_alignment_deg: g.applied_rad.map(f64::to_degrees),
             gyro_alignment_estimate_deg: g.estimate_rad.map(|v| v.map(f64::to_degrees)),
             gyro_alignment_std_deg: g.estimate_std_rad.map(|v| v.map(f64::to_degrees)),

@@ -225,6 +225,20 @@ impl ReplayReport {
                     l.published_jump_rad_max.to_degrees()
                 ),
             );
+            if let Some(e) = &self.loop_edges {
+                row(
+                    "loop edges vs truth",
+                    format!(
+                        "{} loops: measured edge error median {:.1} cm, max {:.1} cm, {:.2}° \
+                         (the graph's prediction before them: median {:.1} cm)",
+                        e.evaluated,
+                        e.edge_m_p50 * 100.0,
+                        e.edge_m_max * 100.0,
+                        e.edge_rad_max.to_degrees(),
+                        e.prior_m_p50 * 100.0
+                    ),
+                );
+            }
             if l.guided_returns > 0 {
                 row(
                     "guided returns",

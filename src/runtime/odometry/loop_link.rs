@@ -8,11 +8,13 @@
 //! next one by a looser edge), and its correction is taken when it arrives.
 
 use super::Odometry;
+use super::loop_log::LoopRecord;
 use crate::camera::CameraModel;
 use crate::geometry::se3;
 use crate::image::Image;
-use crate::loop_closure::closer::{LoopCloser, LoopClosureConfig, LoopClosureStats};
+use crate::loop_closure::closer::{LoopCloser, LoopClosure, LoopClosureConfig, LoopClosureStats};
 use crate::mapping::semidense::SemidenseMap;
+use crate::time::TimeNs;
 use crate::tracking::Keyframe;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -21,6 +23,10 @@ use std::sync::Arc;
 
 /// Jobs queued for the loop closer's thread.
 const QUEUE_LEN: usize = 16;
+
+/// Host links followed at most to find the correction of a keyframe the closer has not taken in
+/// yet ([`LoopLink::correction_for`]).
+const MAX_HOST_STEPS: usize = 8;
 
 /// A correction that moves the published pose by less than these (m, rad) is not a jump: a new
 /// keyframe without a loop carries its host's correction, equal to it but for rounding.
@@ -46,6 +52,8 @@ struct LoopReport {
     correction: Isometry3<f64>,
     by_keyframe: HashMap<u32, Isometry3<f64>>,
     stats: LoopClosureStats,
+    /// The loops closed since the last report (kept until a report carries them).
+    closures: Vec<LoopClosure>,
 }
 
 fn run(closer: &mut LoopCloser, job: LoopJob) {
@@ -78,6 +86,9 @@ pub(super) struct LoopLink {
     correction: Isometry3<f64>,
     /// Every keyframe's correction (`LoopCloser::corrections_into`).
     by_keyframe: HashMap<u32, Isometry3<f64>>,
+    /// The keyframe each keyframe handed to the closer was started from: a keyframe the closer's
+    /// thread has not taken in yet carries its host's correction, as the closer will give it.
+    hosts: HashMap<u32, u32>,
     /// The correction last applied to the published pose.
     published: Isometry3<f64>,
     stats: LoopClosureStats,
@@ -98,6 +109,10 @@ pub(super) struct LoopLink {
     jobs_dropped: usize,
     /// Returns to stored keyframes started from the graph's placement.
     pub(super) guided_returns: usize,
+    /// The time of each keyframe handed to the closer (for the loops' records).
+    times: HashMap<u32, TimeNs>,
+    /// Every loop closed, in order (`OUT/loops.csv`).
+    closures: Vec<LoopRecord>,
 }
 
 impl LoopLink {
@@ -112,17 +127,23 @@ impl LoopLink {
                 .name("loop-closure".into())
                 .spawn(move || {
                     crate::runtime::thread_priority::lower_current_thread(nice);
+                    let mut closures = Vec::new();
                     for job in job_rx {
                         run(&mut closer, job);
                         let mut by_keyframe = HashMap::new();
                         closer.corrections_into(&mut by_keyframe);
+                        closures.extend(closer.take_closures());
                         let report = LoopReport {
                             correction: closer.correction(),
                             by_keyframe,
                             stats: closer.stats(),
+                            closures: std::mem::take(&mut closures),
                         };
-                        // The odometry takes only the newest; a full queue drops this one.
-                        let _ = report_tx.try_send(report);
+                        // The odometry takes only the newest; a full queue drops this one (its
+                        // loops go with the next).
+                        if let Err(TrySendError::Full(r)) = report_tx.try_send(report) {
+                            closures = r.closures;
+                        }
                     }
                 })
                 .expect("spawning the loop-closure thread");
@@ -134,6 +155,7 @@ impl LoopLink {
             runner,
             correction: Isometry3::identity(),
             by_keyframe: HashMap::new(),
+            hosts: HashMap::new(),
             published: Isometry3::identity(),
             stats: LoopClosureStats::default(),
             corrections: 0,
@@ -145,6 +167,8 @@ impl LoopLink {
             jump_rad_max: 0.0,
             jobs_dropped: 0,
             guided_returns: 0,
+            times: HashMap::new(),
+            closures: Vec::new(),
         }
     }
 
@@ -155,7 +179,10 @@ impl LoopLink {
                 let c = closer.correction();
                 closer.corrections_into(&mut self.by_keyframe);
                 self.stats = closer.stats();
+                let closures = closer.take_closures();
                 self.take(c);
+                self.forget_known_hosts();
+                self.record(&closures);
             }
             Runner::Thread { jobs, .. } => match jobs.try_send(job) {
                 Ok(()) => {}
@@ -177,27 +204,62 @@ impl LoopLink {
     fn receive(&mut self) {
         if let Runner::Thread { reports, .. } = &self.runner {
             let mut newest = None;
-            while let Ok(r) = reports.try_recv() {
+            let mut closures = Vec::new();
+            while let Ok(mut r) = reports.try_recv() {
+                closures.append(&mut r.closures);
                 newest = Some(r);
             }
+            self.record(&closures);
             if let Some(r) = newest {
                 self.stats = r.stats;
                 self.by_keyframe = r.by_keyframe;
                 self.take(r.correction);
+                self.forget_known_hosts();
             }
         }
     }
 
+    /// Keeps the loops closed with their keyframes' times.
+    fn record(&mut self, closures: &[LoopClosure]) {
+        let times = &self.times;
+        self.closures.extend(closures.iter().filter_map(|c| {
+            Some(LoopRecord {
+                new_t: *times.get(&c.new_id)?,
+                old_t: *times.get(&c.old_id)?,
+                closure: *c,
+            })
+        }));
+    }
+
+    /// Every loop closed so far, in order (real time: those the closer's thread reported).
+    pub(super) fn closures(&mut self) -> &[LoopRecord] {
+        self.receive();
+        &self.closures
+    }
+
+    /// Hosts are needed only for keyframes the closer has not taken in (nor refused: past
+    /// `max_keyframes` the map stops growing too).
+    fn forget_known_hosts(&mut self) {
+        let known = &self.by_keyframe;
+        self.hosts.retain(|id, _| !known.contains_key(id));
+    }
+
     /// The correction of the odometry's world while keyframe `tracked` is tracked: that
-    /// keyframe's (after a return to a stored keyframe the odometry is in its world), else the
+    /// keyframe's (after a return to a stored keyframe the odometry is in its world); for one the
+    /// closer has not taken in yet (its thread lags in real time), that of the nearest keyframe
+    /// up its chain of hosts the closer has — the correction the closer starts it with; else the
     /// newest keyframe's.
     pub(super) fn correction_for(&mut self, tracked: Option<u32>) -> Isometry3<f64> {
         self.receive();
-        tracked
-            .and_then(|id| self.by_keyframe.get(&id))
-            .filter(|c| se3::is_finite(c))
-            .copied()
-            .unwrap_or(self.correction)
+        let mut id = tracked;
+        for _ in 0..=MAX_HOST_STEPS {
+            let Some(k) = id else { break };
+            if let Some(c) = self.by_keyframe.get(&k).filter(|c| se3::is_finite(c)) {
+                return *c;
+            }
+            id = self.hosts.get(&k).copied();
+        }
+        self.correction
     }
 
     /// The correction applied to the published pose while keyframe `tracked` is tracked
@@ -272,26 +334,32 @@ impl Odometry {
         }
     }
 
-    /// A new keyframe `id` at camera pose `t_world_cam` is installed, leaving `left` (tracked
-    /// until now) with its final map `left_map` (`left_filled`: its depths were guessed, not
-    /// measured — no map for the closer).
+    /// A new keyframe `id` of time `t` at camera pose `t_world_cam` is installed, leaving `left`
+    /// (tracked until now) with its final map `left_map` (`None` if its depths were guessed, not
+    /// measured: no map for the closer).
     pub(super) fn loop_keyframe(
         &mut self,
         id: u32,
+        t: TimeNs,
         t_world_cam: Isometry3<f64>,
         image: &Arc<Image<u8>>,
         left: Option<&Keyframe>,
         left_map: Option<&Arc<SemidenseMap>>,
-        left_filled: bool,
     ) {
         let Some(link) = &mut self.loop_closer else {
             return;
         };
-        if let (Some(l), Some(m), false) = (left, left_map, left_filled) {
+        if let (Some(l), Some(m)) = (left, left_map) {
             link.submit(LoopJob::Map {
                 id: l.id,
                 map: m.clone(),
             });
+        }
+        if link.times.len() < self.cfg.loop_closure.max_keyframes {
+            link.times.insert(id, t);
+            if let Some(l) = left {
+                link.hosts.insert(id, l.id);
+            }
         }
         link.submit(LoopJob::Keyframe {
             id,
@@ -360,6 +428,39 @@ mod tests {
         assert!((stats.published_jump_m_mean - (first_m + 2.0 * switch_m) / 3.0).abs() < 1e-12);
         assert!((stats.published_jump_m_max - first_m.max(switch_m)).abs() < 1e-12);
         assert!((stats.published_jump_rad_max - 0.15).abs() < 1e-12);
+    }
+
+    /// A keyframe the closer has not taken in yet (its thread lags) is corrected as its nearest
+    /// known host is, not as the newest keyframe: after a return to a stored keyframe the two are
+    /// in different worlds.
+    #[test]
+    fn a_keyframe_not_yet_in_the_graph_takes_its_hosts_correction() {
+        let cfg = LoopClosureConfig::default();
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let (stored, newest) = (yawed(0.2, -0.6), yawed(-0.05, 0.2));
+        link.by_keyframe.insert(3, stored);
+        link.by_keyframe.insert(40, newest);
+        link.correction = newest;
+        // 41 was started from stored keyframe 3 (a return), 42 from 41: neither in the graph yet.
+        link.hosts.insert(41, 3);
+        link.hosts.insert(42, 41);
+        assert!(close(&link.correction_for(Some(42)), &stored));
+        assert!(close(&link.correction_for(Some(41)), &stored));
+        // A chain longer than MAX_HOST_STEPS, or one that ends unknown: the newest keyframe's.
+        let m = MAX_HOST_STEPS as u32;
+        for k in 100..100 + m {
+            link.hosts.insert(k + 1, k);
+        }
+        link.hosts.insert(100, 3);
+        // 100 + m - 1 is m links from 3, 100 + m one more.
+        assert!(close(&link.correction_for(Some(100 + m - 1)), &stored));
+        assert!(close(&link.correction_for(Some(100 + m)), &newest));
+        link.hosts.insert(50, 49);
+        assert!(close(&link.correction_for(Some(50)), &newest));
+        // Once the closer has taken a keyframe in, its host is forgotten.
+        link.by_keyframe.insert(41, stored);
+        link.forget_known_hosts();
+        assert!(!link.hosts.contains_key(&41) && link.hosts.contains_key(&42));
     }
 
     /// Jumps of the published pose are signalled as resets only once the pose has moved beyond

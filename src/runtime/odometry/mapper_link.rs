@@ -538,19 +538,22 @@ impl Odometry {
                 .keyframe_install_latency_frames
                 .push(self.frame_number - started);
         }
-        let (new_id, new_pose) = (kf.id, kf.t_world_cam);
+        let (new_id, new_t, new_pose) = (kf.id, kf.t, kf.t_world_cam);
         // A refresh of the same keyframe keeps the brightness estimate.
         let previous = self.tracker.set_keyframe(kf);
         if is_new {
-            let left_map = self.tracking_map.clone();
-            let left_filled = self.tracking_kf_filled;
+            // A map of guessed depths is none for the loop closer.
+            let left_map = self
+                .tracking_map
+                .clone()
+                .filter(|_| !self.tracking_kf_filled);
             self.loop_keyframe(
                 new_id,
+                new_t,
                 new_pose,
                 &s.keyframe_image,
                 previous.as_ref(),
                 left_map.as_ref(),
-                left_filled,
             );
             if let (Some(old), Some(map)) = (previous, self.tracking_map.take()) {
                 self.store_keyframe(old, map);

@@ -101,6 +101,7 @@ mod bootstrap_config;
 mod gyro_link;
 mod keyframe_returns;
 mod loop_link;
+mod loop_log;
 mod mapper_link;
 mod refinement_jobs;
 mod stats;
@@ -111,6 +112,7 @@ pub use bootstrap_config::{BootstrapConfig, TakeoffRefinement};
 pub use gyro_link::GyroAlignmentStats;
 use gyro_link::GyroLink;
 use loop_link::LoopLink;
+pub use loop_log::{LoopEdgeErrors, LoopEdgeSummary, LoopRecord, loop_edge_summary, loops_csv};
 pub use stats::{OdometryStats, RestImuDensity};
 
 /// Static frames remembered to pick the first keyframe before the back-dated motion onset.
@@ -996,6 +998,9 @@ impl Odometry {
     /// Stops the mapping thread and returns what it built.
     pub fn finish(mut self) -> (OdometryStats, MappingOutput) {
         self.record_gyro_alignment();
+        if let Some(link) = &mut self.loop_closer {
+            self.stats.loop_closures = link.closures().to_vec();
+        }
         if let Some(r) = self.refiner.take() {
             r.finish();
         }

@@ -107,6 +107,9 @@ pub struct OdometryStats {
     pub gyro_alignment: GyroAlignmentStats,
     /// The loop closer's counters (`[loop_closure] enabled`).
     pub loop_closure: Option<LoopClosureStats>,
+    /// Every loop closed, in order (`OUT/loops.csv`; real time: those the closer's thread had
+    /// reported by the last frame).
+    pub loop_closures: Vec<LoopRecord>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
