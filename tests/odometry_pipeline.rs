@@ -949,7 +949,7 @@ fn ideal_flight() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| simulate_ideal("flight", None)).clone()
 }
-const IDEAL_FLIGHT_USERS: usize = 3;
+const IDEAL_FLIGHT_USERS: usize = 4;
 fn done_with_ideal_flight(dir: &std::path::Path) {
     static DONE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
     if DONE.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1 == IDEAL_FLIGHT_USERS {
@@ -1134,6 +1134,60 @@ fn the_landing_after_the_turn_on_the_spot_takes_the_imu_scale() {
         "no keyframe tracked with guessed depths was adjusted"
     );
     assert!((ratio - 1.0).abs() < 0.03, "descent {ratio} x the truth");
+    assert!(out.frames.iter().all(|r| r.state.is_finite()));
+    done_with_ideal_flight(&dir);
+}
+
+/// `[scale_observer] fault_min_scale`: once an estimate of the map scale against the IMU falls
+/// outside the band, every frame is published failed (MAVLink quality −1) until one within it —
+/// here a band whose lower end is the ideal flight's true scale, so that its estimates fall on
+/// both sides of it.
+#[test]
+fn a_scale_estimate_outside_the_band_fails_the_published_frames_until_one_within() {
+    let dir = ideal_flight();
+    let mut opts = ReplayOptions::default();
+    opts.scale_observer.fault_min_scale = 1.0;
+    let mut seen: Vec<(vidslam::time::TimeNs, bool, bool, bool)> = Vec::new();
+    let mut observe = |f: &vidslam::runtime::odometry::OdometryFrame| {
+        let failed = vidslam::runtime::fc_sample::health(f)
+            == vidslam::output::sample::TrackingHealth::Failed;
+        seen.push((f.result.t, f.valid, f.scale_fault, failed));
+    };
+    let out =
+        vidslam::runtime::replay::replay_observed(&dir, &opts, &mut |_, _| {}, Some(&mut observe))
+            .unwrap();
+    let estimates = &out.odometry.imu_scale;
+    let cfg = &opts.scale_observer;
+    let faults = estimates
+        .iter()
+        .filter(|e| cfg.is_fault(e.scale, e.scale_std))
+        .count();
+    println!(
+        "{} estimates, {faults} below 1; {} faults, {} frames failed",
+        estimates.len(),
+        out.odometry.scale_faults,
+        out.odometry.scale_fault_frames
+    );
+    assert!(
+        faults > 0 && faults < estimates.len(),
+        "estimates on both sides of the band's end"
+    );
+    assert!(out.odometry.scale_faults >= 1);
+    let mut flagged = 0;
+    for &(t, valid, fault, failed) in &seen {
+        // The latest estimate at or before the frame decides.
+        let want = estimates
+            .iter()
+            .rev()
+            .find(|e| e.t <= t)
+            .is_some_and(|e| cfg.is_fault(e.scale, e.scale_std));
+        assert_eq!(fault, want, "frame at {} ns", t.0);
+        if fault {
+            assert!(failed, "a frame with a scale fault is published failed");
+        }
+        flagged += usize::from(valid && fault);
+    }
+    assert_eq!(flagged, out.odometry.scale_fault_frames);
     assert!(out.frames.iter().all(|r| r.state.is_finite()));
     done_with_ideal_flight(&dir);
 }

@@ -47,10 +47,14 @@ pub fn fc_sample(f: &OdometryFrame, t_host: TimeNs) -> Option<OdometrySample> {
     Some(s)
 }
 
-/// The tracking health of a frame: failed while lost; the worst quality (1) for a pose the IMU
+/// The tracking health of a frame: failed while lost or while the map's scale has run away
+/// ([`OdometryFrame::scale_fault`]); the worst quality (1) for a pose the IMU
 /// alone carried (the first map being built, or a frame whose visual solution was rejected);
 /// at rest the best; tracking, the share of the keyframe's points that are inliers.
 pub fn health(f: &OdometryFrame) -> TrackingHealth {
+    if f.scale_fault {
+        return TrackingHealth::Failed;
+    }
     let quality_percent = match f.phase {
         Phase::Lost => return TrackingHealth::Failed,
         Phase::Static => 100,
@@ -113,6 +117,7 @@ mod tests {
             valid: true,
             resets: 2,
             loop_corrections: 3,
+            scale_fault: false,
             omega_body_rad_s: Vector3::new(0.01, 0.02, -0.03),
             times: FrameTimes::default(),
         }
@@ -154,6 +159,11 @@ mod tests {
             q(Phase::Initializing),
             TrackingHealth::Tracking { quality_percent: 1 }
         );
+        let mut runaway = frame(Phase::Tracking);
+        runaway.scale_fault = true;
+        assert_eq!(health(&runaway), TrackingHealth::Failed);
+        runaway.phase = Phase::Static;
+        assert_eq!(health(&runaway), TrackingHealth::Failed);
         let mut rejected = frame(Phase::Tracking);
         rejected.result.flag = Some(crate::tracking::FlagReason::FewInliers);
         assert_eq!(

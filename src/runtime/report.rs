@@ -268,6 +268,10 @@ pub struct ReplayReport {
     pub imu_scale_p10: Option<f64>,
     pub imu_scale_p50: Option<f64>,
     pub imu_scale_p90: Option<f64>,
+    /// Estimates that turned the scale fault on (`[scale_observer] fault_min_scale` /
+    /// `fault_max_scale`: the map's scale ran away) and the frames published failed for it.
+    pub scale_faults: usize,
+    pub scale_fault_frames: usize,
     /// Each mapper view's scale against the map propagated from the previous keyframe (the
     /// median ratio of its inverse depths to the priors; 1 = its tracked baseline agrees with
     /// the map chain, `[mapping] view_scale_gain`): how many views, and their 10th / 50th / 90th
@@ -562,6 +566,8 @@ impl ReplayReport {
             imu_scale_p10: imu_scale_pct(10.0),
             imu_scale_p50: imu_scale_pct(50.0),
             imu_scale_p90: imu_scale_pct(90.0),
+            scale_faults: out.odometry.scale_faults,
+            scale_fault_frames: out.odometry.scale_fault_frames,
             view_scale_views: view_scale.len(),
             view_scale_p10: view_scale_pct(10.0),
             view_scale_p50: view_scale_pct(50.0),

@@ -304,8 +304,18 @@ impl ReplayReport {
             row(
                 "scale vs IMU",
                 format!(
-                    "{} estimates, tracked→metric p10/p50/p90 {:.3} / {:.3} / {:.3}",
-                    self.imu_scale_estimates, p10, p50, p90
+                    "{} estimates, tracked→metric p10/p50/p90 {:.3} / {:.3} / {:.3}{}",
+                    self.imu_scale_estimates,
+                    p10,
+                    p50,
+                    p90,
+                    match self.scale_faults {
+                        0 => String::new(),
+                        n => format!(
+                            "; SCALE RAN AWAY: {n} faults, {} frames published failed",
+                            self.scale_fault_frames
+                        ),
+                    }
                 ),
             );
         }

@@ -154,6 +154,10 @@ pub struct OdometryFrame {
     /// `[loop_closure] reset_min_jump_m` / `_rad` since the last time (MAVLink `reset_counter`
     /// counts these too).
     pub loop_corrections: u32,
+    /// The map scale measured against the IMU ran away (`[scale_observer] fault_min_scale` /
+    /// `fault_max_scale`): the pose is not to be flown on (MAVLink quality −1) until an estimate
+    /// within the band comes.
+    pub scale_fault: bool,
     /// Angular rate of the body at the frame, body (IMU) coordinates, rad/s: the last gyro
     /// sample at or before the frame (turned by `[gyro_alignment]`) less the frame's gyro bias —
     /// what MAVLink ODOMETRY's `rollspeed`/`pitchspeed`/`yawspeed` carry. Zero before any sample.
@@ -402,6 +406,8 @@ pub struct Odometry {
     mapper_kf_pose: Option<(u32, Isometry3<f64>)>,
     /// The tracked trajectory of the last seconds, for the map scale (`[scale_observer]`).
     scale: ScaleObserver,
+    /// The last scale estimate was a fault (`[scale_observer] fault_min_scale`).
+    scale_fault: bool,
     /// The in-flight gyro alignment (`[gyro_alignment]`, `gyro_link.rs`).
     gyro: GyroLink,
     /// The position change tracking made on the current frame (before any correction).
@@ -492,6 +498,7 @@ impl Odometry {
             refine_outstanding: 0,
             imu: VecDeque::with_capacity(4096),
             scale: ScaleObserver::new(cfg.scale_observer),
+            scale_fault: false,
             gyro,
             tracked_step_m: None,
             keyframe_jump: false,
@@ -633,6 +640,10 @@ impl Odometry {
             self.stats.loop_closure = Some(link.stats());
         }
         f.omega_body_rad_s = self.body_rate_rad_s(t, &f.result.state.bias.gyro_rad_s);
+        f.scale_fault = self.scale_fault;
+        if f.valid && f.scale_fault {
+            self.stats.scale_fault_frames += 1;
+        }
         self.times.total_s = started.elapsed().as_secs_f64();
         self.times.cpu_s = cpu_started
             .zip(thread_cpu_time_s())
@@ -689,6 +700,7 @@ impl Odometry {
                     valid: false,
                     resets: self.stats.resets,
                     loop_corrections: 0,
+                    scale_fault: false,
                     omega_body_rad_s: Vector3::zeros(),
                     times: FrameTimes::default(),
                 };
@@ -886,6 +898,11 @@ impl Odometry {
                         }
                     }
                     if let Some(e) = self.scale.estimate(self.imu.make_contiguous()) {
+                        let fault = self.cfg.scale_observer.is_fault(e.scale, e.scale_std);
+                        if fault && !self.scale_fault {
+                            self.stats.scale_faults += 1;
+                        }
+                        self.scale_fault = fault;
                         self.stats.imu_scale.push(ScaleSample {
                             t,
                             scale: e.scale,
@@ -990,6 +1007,7 @@ impl Odometry {
             valid: true,
             resets: self.stats.resets,
             loop_corrections: 0,
+            scale_fault: false,
             omega_body_rad_s: Vector3::zeros(),
             times: FrameTimes::default(),
         }

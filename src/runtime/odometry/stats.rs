@@ -90,6 +90,10 @@ pub struct OdometryStats {
     pub jobs_dropped: usize,
     /// The map scale measured against the IMU at each new keyframe (`[scale_observer]`).
     pub imu_scale: Vec<ScaleSample>,
+    /// Times an estimate turned the scale fault on (`[scale_observer] fault_min_scale`), and the
+    /// valid frames published failed because of it.
+    pub scale_faults: usize,
+    pub scale_fault_frames: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
     /// Each window solve's change of the distance from the window's previous newest keyframe
