@@ -11,7 +11,8 @@ use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
 use vidslam::runtime::map_depth::{keyframe_depth_errors, median};
 use vidslam::runtime::odometry::{
-    AdjustmentOutcome, OdometryConfig, Phase, TakeoffRefinement, adjustments_csv, loop_edge_summary,
+    AdjustmentOutcome, OdometryConfig, Phase, TakeoffRefinement, adjustments_csv, loop_edge_errors,
+    loop_edge_summary,
 };
 use vidslam::runtime::true_view_poses::TrueCameraPoses;
 use vidslam::runtime::{DepthSource, ReplayOptions, ReplayReport, replay, trajectory};
@@ -1232,7 +1233,8 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
         ds.ground_truth().unwrap().unwrap().trajectory(),
         ds.camera.t_body_cam,
     );
-    let edges = loop_edge_summary(loops, &truth).expect("loops within the ground truth");
+    let edges = loop_edge_summary(&loop_edge_errors(loops, Some(&truth)))
+        .expect("loops within the ground truth");
     println!("loop edges against the truth: {edges:?}");
     assert_eq!(edges.evaluated, loops.len());
     assert!(loops.iter().all(|r| r.old_t < r.new_t));

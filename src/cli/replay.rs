@@ -8,7 +8,7 @@ use crate::output::{Endpoint, MavlinkSender};
 use crate::runtime::fc_sample::fc_sample;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
 use crate::runtime::odometry::OdometryFrame;
-use crate::runtime::odometry::{adjustments_csv, loop_edge_summary, loops_csv};
+use crate::runtime::odometry::{adjustments_csv, loop_edge_errors, loop_edge_summary, loops_csv};
 use crate::runtime::replay::{FrameObserver, StartMode, replay_observed};
 use crate::runtime::replay_files::{frames_csv, write_ply};
 use crate::runtime::scale_observer::imu_scale_csv;
@@ -229,8 +229,10 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     }
     let ds = AslDataset::open(&a.dir)?;
     let gt = ds.ground_truth()?;
-    if let Some(gt) = &gt {
-        report.evaluate_against(&gt.trajectory(), &est);
+    // The ground truth's poses, built once: for the evaluation and the loops' errors.
+    let gt_poses = gt.as_ref().map(|g| g.trajectory());
+    if let (Some(gt), Some(gt_poses)) = (&gt, &gt_poses) {
+        report.evaluate_against(gt_poses, &est);
         report.set_velocity_errors(gt, &est, &out);
         let imu: Vec<_> = ds.imu_samples()?.collect::<Result<_, _>>()?;
         if let Some(b) = implied_accel_bias(&gt.states, &imu, IMPLIED_BIAS_WINDOW_S) {
@@ -252,14 +254,11 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     }
     if !out.odometry.loop_closures.is_empty() {
         let loops = &out.odometry.loop_closures;
-        let truth = gt
-            .as_ref()
-            .map(|g| TrueCameraPoses::new(g.trajectory(), ds.camera.t_body_cam));
-        if let Some(truth) = &truth {
-            report.loop_edges = loop_edge_summary(loops, truth);
-        }
+        let truth = gt_poses.map(|poses| TrueCameraPoses::new(poses, ds.camera.t_body_cam));
+        let errors = loop_edge_errors(loops, truth.as_ref());
+        report.loop_edges = loop_edge_summary(&errors);
         let p = a.out.join("loops.csv");
-        std::fs::write(&p, loops_csv(loops, truth.as_ref()))
+        std::fs::write(&p, loops_csv(loops, &errors))
             .with_context(|| format!("writing {}", p.display()))?;
     }
     if !out.odometry.adjustments.is_empty() {

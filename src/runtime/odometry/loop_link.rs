@@ -86,9 +86,6 @@ pub(super) struct LoopLink {
     correction: Isometry3<f64>,
     /// Every keyframe's correction (`LoopCloser::corrections_into`).
     by_keyframe: HashMap<u32, Isometry3<f64>>,
-    /// The keyframe each keyframe handed to the closer was started from: a keyframe the closer's
-    /// thread has not taken in yet carries its host's correction, as the closer will give it.
-    hosts: HashMap<u32, u32>,
     /// The correction last applied to the published pose.
     published: Isometry3<f64>,
     stats: LoopClosureStats,
@@ -109,8 +106,10 @@ pub(super) struct LoopLink {
     jobs_dropped: usize,
     /// Returns to stored keyframes started from the graph's placement.
     pub(super) guided_returns: usize,
-    /// The time of each keyframe handed to the closer (for the loops' records).
-    times: HashMap<u32, TimeNs>,
+    /// Each keyframe handed to the closer: its time (for the loops' records) and the keyframe it
+    /// was started from (one the closer's thread has not taken in yet carries its host's
+    /// correction, as the closer will give it).
+    started: HashMap<u32, (TimeNs, Option<u32>)>,
     /// Every loop closed, in order (`OUT/loops.csv`).
     closures: Vec<LoopRecord>,
 }
@@ -155,7 +154,6 @@ impl LoopLink {
             runner,
             correction: Isometry3::identity(),
             by_keyframe: HashMap::new(),
-            hosts: HashMap::new(),
             published: Isometry3::identity(),
             stats: LoopClosureStats::default(),
             corrections: 0,
@@ -167,7 +165,7 @@ impl LoopLink {
             jump_rad_max: 0.0,
             jobs_dropped: 0,
             guided_returns: 0,
-            times: HashMap::new(),
+            started: HashMap::new(),
             closures: Vec::new(),
         }
     }
@@ -181,7 +179,6 @@ impl LoopLink {
                 self.stats = closer.stats();
                 let closures = closer.take_closures();
                 self.take(c);
-                self.forget_known_hosts();
                 self.record(&closures);
             }
             Runner::Thread { jobs, .. } => match jobs.try_send(job) {
@@ -214,18 +211,17 @@ impl LoopLink {
                 self.stats = r.stats;
                 self.by_keyframe = r.by_keyframe;
                 self.take(r.correction);
-                self.forget_known_hosts();
             }
         }
     }
 
     /// Keeps the loops closed with their keyframes' times.
     fn record(&mut self, closures: &[LoopClosure]) {
-        let times = &self.times;
+        let started = &self.started;
         self.closures.extend(closures.iter().filter_map(|c| {
             Some(LoopRecord {
-                new_t: *times.get(&c.new_id)?,
-                old_t: *times.get(&c.old_id)?,
+                new_t: started.get(&c.new_id)?.0,
+                old_t: started.get(&c.old_id)?.0,
                 closure: *c,
             })
         }));
@@ -235,13 +231,6 @@ impl LoopLink {
     pub(super) fn closures(&mut self) -> &[LoopRecord] {
         self.receive();
         &self.closures
-    }
-
-    /// Hosts are needed only for keyframes the closer has not taken in (nor refused: past
-    /// `max_keyframes` the map stops growing too).
-    fn forget_known_hosts(&mut self) {
-        let known = &self.by_keyframe;
-        self.hosts.retain(|id, _| !known.contains_key(id));
     }
 
     /// The correction of the odometry's world while keyframe `tracked` is tracked: that
@@ -257,7 +246,7 @@ impl LoopLink {
             if let Some(c) = self.by_keyframe.get(&k).filter(|c| se3::is_finite(c)) {
                 return *c;
             }
-            id = self.hosts.get(&k).copied();
+            id = self.started.get(&k).and_then(|&(_, host)| host);
         }
         self.correction
     }
@@ -355,11 +344,9 @@ impl Odometry {
                 map: m.clone(),
             });
         }
-        if link.times.len() < self.cfg.loop_closure.max_keyframes {
-            link.times.insert(id, t);
-            if let Some(l) = left {
-                link.hosts.insert(id, l.id);
-            }
+        // As many as the closer keeps at most.
+        if link.started.len() < self.cfg.loop_closure.max_keyframes {
+            link.started.insert(id, (t, left.map(|l| l.id)));
         }
         link.submit(LoopJob::Keyframe {
             id,
@@ -441,26 +428,28 @@ mod tests {
         link.by_keyframe.insert(3, stored);
         link.by_keyframe.insert(40, newest);
         link.correction = newest;
+        let t = TimeNs(0);
         // 41 was started from stored keyframe 3 (a return), 42 from 41: neither in the graph yet.
-        link.hosts.insert(41, 3);
-        link.hosts.insert(42, 41);
+        link.started.insert(41, (t, Some(3)));
+        link.started.insert(42, (t, Some(41)));
         assert!(close(&link.correction_for(Some(42)), &stored));
         assert!(close(&link.correction_for(Some(41)), &stored));
         // A chain longer than MAX_HOST_STEPS, or one that ends unknown: the newest keyframe's.
         let m = MAX_HOST_STEPS as u32;
         for k in 100..100 + m {
-            link.hosts.insert(k + 1, k);
+            link.started.insert(k + 1, (t, Some(k)));
         }
-        link.hosts.insert(100, 3);
+        link.started.insert(100, (t, Some(3)));
         // 100 + m - 1 is m links from 3, 100 + m one more.
         assert!(close(&link.correction_for(Some(100 + m - 1)), &stored));
         assert!(close(&link.correction_for(Some(100 + m)), &newest));
-        link.hosts.insert(50, 49);
+        link.started.insert(50, (t, Some(49)));
         assert!(close(&link.correction_for(Some(50)), &newest));
-        // Once the closer has taken a keyframe in, its host is forgotten.
-        link.by_keyframe.insert(41, stored);
-        link.forget_known_hosts();
-        assert!(!link.hosts.contains_key(&41) && link.hosts.contains_key(&42));
+        // Once the closer has taken a keyframe in, its own correction counts, not its host's.
+        let own = yawed(0.1, 0.4);
+        link.by_keyframe.insert(41, own);
+        assert!(close(&link.correction_for(Some(41)), &own));
+        assert!(close(&link.correction_for(Some(42)), &own));
     }
 
     /// Jumps of the published pose are signalled as resets only once the pose has moved beyond

@@ -64,16 +64,28 @@ pub struct LoopEdgeErrors {
     pub prior_rad: f64,
 }
 
-/// `loops.csv`: one row per loop closed; the error columns NaN without ground truth.
-pub fn loops_csv(rows: &[LoopRecord], truth: Option<&TrueCameraPoses>) -> String {
+/// Each loop's errors against the ground truth (`None` without it, or outside it), computed once
+/// for [`loops_csv`] and [`loop_edge_summary`].
+pub fn loop_edge_errors(
+    rows: &[LoopRecord],
+    truth: Option<&TrueCameraPoses>,
+) -> Vec<Option<LoopEdgeErrors>> {
+    rows.iter()
+        .map(|r| truth.and_then(|t| r.errors(t)))
+        .collect()
+}
+
+/// `loops.csv`: one row per loop closed, with its errors ([`loop_edge_errors`], one per row);
+/// the error columns NaN where there are none.
+pub fn loops_csv(rows: &[LoopRecord], errors: &[Option<LoopEdgeErrors>]) -> String {
     let mut s = String::from(
         "new_t_ns,old_t_ns,inliers,inlier_ratio,inlier_rms_px,correction_m,correction_rad,\
          edge_error_m,edge_error_rad,prior_error_m,prior_error_rad\n",
     );
-    for r in rows {
+    for (r, e) in rows.iter().zip(errors) {
         let c = &r.closure;
         let (corr_m, corr_rad) = r.correction();
-        let e = truth.and_then(|t| r.errors(t)).unwrap_or(LoopEdgeErrors {
+        let e = e.unwrap_or(LoopEdgeErrors {
             edge_m: f64::NAN,
             edge_rad: f64::NAN,
             prior_m: f64::NAN,
@@ -110,9 +122,9 @@ pub struct LoopEdgeSummary {
     pub prior_m_p50: f64,
 }
 
-/// Summary of the loops' errors (`None` if none has ground truth).
-pub fn loop_edge_summary(rows: &[LoopRecord], truth: &TrueCameraPoses) -> Option<LoopEdgeSummary> {
-    let errors: Vec<LoopEdgeErrors> = rows.iter().filter_map(|r| r.errors(truth)).collect();
+/// Summary of the loops' errors ([`loop_edge_errors`]; `None` if none has any).
+pub fn loop_edge_summary(errors: &[Option<LoopEdgeErrors>]) -> Option<LoopEdgeSummary> {
+    let errors: Vec<LoopEdgeErrors> = errors.iter().flatten().copied().collect();
     if errors.is_empty() {
         return None;
     }
@@ -180,14 +192,20 @@ mod tests {
         assert!((corr_m - 0.05).abs() < 1e-9 && (corr_rad - 0.01).abs() < 1e-9);
         let outside = record(TimeNs(500_000_000));
         assert_eq!(outside.errors(&truth), None);
-        let csv = loops_csv(&[r, outside], Some(&truth));
+        let errors = loop_edge_errors(&[r, outside], Some(&truth));
+        assert_eq!(errors, vec![Some(e), None]);
+        let csv = loops_csv(&[r, outside], &errors);
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines.len(), 3);
         assert!(lines[1].starts_with("90000000,20000000,40,0.800,0.600,0.0500,0.01000,0.0000,"));
         assert!(lines[2].ends_with("NaN,NaN,NaN,NaN"), "{}", lines[2]);
-        let s = loop_edge_summary(&[r, outside], &truth).unwrap();
+        let s = loop_edge_summary(&errors).unwrap();
         assert_eq!(s.evaluated, 1);
         assert!(s.edge_m_max < 1e-9 && (s.prior_m_p50 - 0.05).abs() < 1e-9);
-        assert_eq!(loop_edge_summary(&[outside], &truth), None);
+        assert_eq!(
+            loop_edge_summary(&loop_edge_errors(&[outside], Some(&truth))),
+            None
+        );
+        assert_eq!(loop_edge_errors(&[r], None), vec![None]);
     }
 }

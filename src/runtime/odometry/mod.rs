@@ -112,7 +112,9 @@ pub use bootstrap_config::{BootstrapConfig, TakeoffRefinement};
 pub use gyro_link::GyroAlignmentStats;
 use gyro_link::GyroLink;
 use loop_link::LoopLink;
-pub use loop_log::{LoopEdgeErrors, LoopEdgeSummary, LoopRecord, loop_edge_summary, loops_csv};
+pub use loop_log::{
+    LoopEdgeErrors, LoopEdgeSummary, LoopRecord, loop_edge_errors, loop_edge_summary, loops_csv,
+};
 pub use stats::{OdometryStats, RestImuDensity};
 
 /// Static frames remembered to pick the first keyframe before the back-dated motion onset.
@@ -406,8 +408,6 @@ pub struct Odometry {
     mapper_kf_pose: Option<(u32, Isometry3<f64>)>,
     /// The tracked trajectory of the last seconds, for the map scale (`[scale_observer]`).
     scale: ScaleObserver,
-    /// The last scale estimate was a fault (`[scale_observer] fault_min_scale`).
-    scale_fault: bool,
     /// The in-flight gyro alignment (`[gyro_alignment]`, `gyro_link.rs`).
     gyro: GyroLink,
     /// The position change tracking made on the current frame (before any correction).
@@ -498,7 +498,6 @@ impl Odometry {
             refine_outstanding: 0,
             imu: VecDeque::with_capacity(4096),
             scale: ScaleObserver::new(cfg.scale_observer),
-            scale_fault: false,
             gyro,
             tracked_step_m: None,
             keyframe_jump: false,
@@ -640,7 +639,7 @@ impl Odometry {
             self.stats.loop_closure = Some(link.stats());
         }
         f.omega_body_rad_s = self.body_rate_rad_s(t, &f.result.state.bias.gyro_rad_s);
-        f.scale_fault = self.scale_fault;
+        f.scale_fault = self.scale_fault();
         if f.valid && f.scale_fault {
             self.stats.scale_fault_frames += 1;
         }
@@ -650,6 +649,12 @@ impl Odometry {
             .map(|(a, b)| (b - a).max(0.0));
         f.times = self.times;
         f
+    }
+
+    /// The latest map-scale estimate is a fault (`[scale_observer] fault_min_scale`).
+    fn scale_fault(&self) -> bool {
+        (self.stats.imu_scale.last())
+            .is_some_and(|e| self.cfg.scale_observer.is_fault(e.scale, e.scale_std))
     }
 
     /// Tracking a stored keyframe that has not yet passed its probation (`[reuse]
@@ -898,17 +903,16 @@ impl Odometry {
                         }
                     }
                     if let Some(e) = self.scale.estimate(self.imu.make_contiguous()) {
-                        let fault = self.cfg.scale_observer.is_fault(e.scale, e.scale_std);
-                        if fault && !self.scale_fault {
-                            self.stats.scale_faults += 1;
-                        }
-                        self.scale_fault = fault;
+                        let was_fault = self.scale_fault();
                         self.stats.imu_scale.push(ScaleSample {
                             t,
                             scale: e.scale,
                             scale_std: e.scale_std,
                             rms_m: e.rms_m,
                         });
+                        if self.scale_fault() && !was_fault {
+                            self.stats.scale_faults += 1;
+                        }
                     }
                     if self
                         .tracker
