@@ -950,7 +950,7 @@ fn ideal_flight() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| simulate_ideal("flight", None)).clone()
 }
-const IDEAL_FLIGHT_USERS: usize = 4;
+const IDEAL_FLIGHT_USERS: usize = 5;
 fn done_with_ideal_flight(dir: &std::path::Path) {
     static DONE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
     if DONE.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1 == IDEAL_FLIGHT_USERS {
@@ -1190,6 +1190,50 @@ fn a_scale_estimate_outside_the_band_fails_the_published_frames_until_one_within
     }
     assert_eq!(flagged, out.odometry.scale_fault_frames);
     assert!(out.frames.iter().all(|r| r.state.is_finite()));
+    done_with_ideal_flight(&dir);
+}
+
+/// `[scale_observer] fault_max_speed_m_s` below the built-in flight's top speed: exactly the
+/// valid frames published faster than it are speed faults, published failed, counted as frames
+/// and as episodes (the times the speed went beyond it).
+#[test]
+fn a_speed_beyond_the_vehicles_fails_the_published_frames_while_it_lasts() {
+    let dir = ideal_flight();
+    let mut opts = ReplayOptions::default();
+    // About half the flight's top speed (1.65 m/s).
+    opts.scale_observer.fault_max_speed_m_s = 0.8;
+    let limit_m_s = opts.scale_observer.fault_max_speed_m_s;
+    let mut seen: Vec<(bool, f64, bool, bool)> = Vec::new();
+    let mut observe = |f: &vidslam::runtime::odometry::OdometryFrame| {
+        let failed = vidslam::runtime::fc_sample::health(f)
+            == vidslam::output::sample::TrackingHealth::Failed;
+        seen.push((
+            f.valid,
+            f.result.state.nav.v_world_m_s.norm(),
+            f.speed_fault,
+            failed,
+        ));
+    };
+    let out =
+        vidslam::runtime::replay::replay_observed(&dir, &opts, &mut |_, _| {}, Some(&mut observe))
+            .unwrap();
+    let (mut flagged, mut episodes, mut before) = (0, 0, false);
+    for &(valid, speed_m_s, fault, failed) in &seen {
+        assert_eq!(fault, valid && speed_m_s > limit_m_s, "{speed_m_s} m/s");
+        if fault {
+            assert!(failed, "a frame with a speed fault is published failed");
+            flagged += 1;
+            episodes += usize::from(!before);
+        }
+        before = fault;
+    }
+    println!(
+        "limit {limit_m_s:.2} m/s: {flagged} of {} frames, {episodes} times",
+        seen.len()
+    );
+    assert!(flagged > 0 && flagged < seen.len());
+    assert_eq!(flagged, out.odometry.speed_fault_frames);
+    assert_eq!(episodes, out.odometry.speed_faults);
     done_with_ideal_flight(&dir);
 }
 

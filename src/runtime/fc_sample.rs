@@ -47,12 +47,13 @@ pub fn fc_sample(f: &OdometryFrame, t_host: TimeNs) -> Option<OdometrySample> {
     Some(s)
 }
 
-/// The tracking health of a frame: failed while lost or while the map's scale has run away
-/// ([`OdometryFrame::scale_fault`]); the worst quality (1) for a pose the IMU
+/// The tracking health of a frame: failed while lost, while the map's scale has run away
+/// ([`OdometryFrame::scale_fault`]) or while the speed is beyond the vehicle's
+/// ([`OdometryFrame::speed_fault`]); the worst quality (1) for a pose the IMU
 /// alone carried (the first map being built, or a frame whose visual solution was rejected);
 /// at rest the best; tracking, the share of the keyframe's points that are inliers.
 pub fn health(f: &OdometryFrame) -> TrackingHealth {
-    if f.scale_fault {
+    if f.scale_fault || f.speed_fault {
         return TrackingHealth::Failed;
     }
     let quality_percent = match f.phase {
@@ -118,6 +119,7 @@ mod tests {
             resets: 2,
             loop_corrections: 3,
             scale_fault: false,
+            speed_fault: false,
             omega_body_rad_s: Vector3::new(0.01, 0.02, -0.03),
             times: FrameTimes::default(),
         }
@@ -164,6 +166,9 @@ mod tests {
         assert_eq!(health(&runaway), TrackingHealth::Failed);
         runaway.phase = Phase::Static;
         assert_eq!(health(&runaway), TrackingHealth::Failed);
+        let mut too_fast = frame(Phase::Tracking);
+        too_fast.speed_fault = true;
+        assert_eq!(health(&too_fast), TrackingHealth::Failed);
         let mut rejected = frame(Phase::Tracking);
         rejected.result.flag = Some(crate::tracking::FlagReason::FewInliers);
         assert_eq!(

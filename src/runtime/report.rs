@@ -272,6 +272,10 @@ pub struct ReplayReport {
     /// `fault_max_scale`: the map's scale ran away) and the frames published failed for it.
     pub scale_faults: usize,
     pub scale_fault_frames: usize,
+    /// Times the estimated speed went beyond the vehicle's (`[scale_observer]
+    /// fault_max_speed_m_s`) and the frames published failed for it.
+    pub speed_faults: usize,
+    pub speed_fault_frames: usize,
     /// Each mapper view's scale against the map propagated from the previous keyframe (the
     /// median ratio of its inverse depths to the priors; 1 = its tracked baseline agrees with
     /// the map chain, `[mapping] view_scale_gain`): how many views, and their 10th / 50th / 90th
@@ -568,6 +572,8 @@ impl ReplayReport {
             imu_scale_p90: imu_scale_pct(90.0),
             scale_faults: out.odometry.scale_faults,
             scale_fault_frames: out.odometry.scale_fault_frames,
+            speed_faults: out.odometry.speed_faults,
+            speed_fault_frames: out.odometry.speed_fault_frames,
             view_scale_views: view_scale.len(),
             view_scale_p10: view_scale_pct(10.0),
             view_scale_p50: view_scale_pct(50.0),

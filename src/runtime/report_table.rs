@@ -319,6 +319,15 @@ impl ReplayReport {
                 ),
             );
         }
+        if self.speed_faults > 0 {
+            row(
+                "speed beyond the vehicle's",
+                format!(
+                    "{} times, {} frames published failed ([scale_observer] fault_max_speed_m_s)",
+                    self.speed_faults, self.speed_fault_frames
+                ),
+            );
+        }
         if let (Some(p10), Some(p50), Some(p90)) = (
             self.view_scale_p10,
             self.view_scale_p50,

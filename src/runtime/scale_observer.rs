@@ -40,6 +40,12 @@ pub struct ScaleObserverConfig {
     pub fault_min_scale: f64,
     pub fault_max_scale: f64,
     pub fault_max_rel_std: f64,
+    /// The vehicle's top speed, m/s: a published frame whose estimated speed is above it (or not
+    /// finite) is a speed fault, published failed like a scale fault — the first sign of a scale
+    /// that runs away, seconds to tens of seconds before the observer's horizon reads it
+    /// (S-V101's real-time runaway passed 3 m/s 20 s after its loss and 5 m/s 38 s after, its
+    /// first scale fault came 45 s after; the flights here stay under 1.1 m/s). 0 = off.
+    pub fault_max_speed_m_s: f64,
 }
 
 impl ScaleObserverConfig {
@@ -61,6 +67,12 @@ impl ScaleObserverConfig {
             && scale_std < self.fault_max_rel_std * scale
             && !(self.fault_min_scale..=self.fault_max_scale).contains(&scale)
     }
+
+    /// An estimated speed `speed_m_s` beyond the vehicle's (`fault_max_speed_m_s`), or not finite.
+    pub fn is_speed_fault(&self, speed_m_s: f64) -> bool {
+        self.fault_max_speed_m_s > 0.0
+            && (speed_m_s.is_nan() || speed_m_s > self.fault_max_speed_m_s)
+    }
 }
 
 impl Default for ScaleObserverConfig {
@@ -75,6 +87,7 @@ impl Default for ScaleObserverConfig {
             fault_min_scale: 1.0 / 3.0,
             fault_max_scale: 3.0,
             fault_max_rel_std: 0.25,
+            fault_max_speed_m_s: 5.0,
         }
     }
 }
@@ -186,6 +199,22 @@ mod tests {
     use nalgebra::UnitQuaternion;
 
     /// A fault is a confident estimate outside the band; an uncertain or non-finite one is none.
+    /// A speed beyond the vehicle's, or not finite, is a fault; at or below it, none; off at 0.
+    #[test]
+    fn a_speed_beyond_the_vehicles_is_a_speed_fault() {
+        let c = ScaleObserverConfig::default();
+        assert!(!c.is_speed_fault(1.1), "the fastest healthy flight here");
+        assert!(!c.is_speed_fault(5.0), "the limit itself");
+        assert!(c.is_speed_fault(5.01));
+        assert!(c.is_speed_fault(12.4), "S-V101's runaway");
+        assert!(c.is_speed_fault(f64::NAN) && c.is_speed_fault(f64::INFINITY));
+        let off = ScaleObserverConfig {
+            fault_max_speed_m_s: 0.0,
+            ..c
+        };
+        assert!(!off.is_speed_fault(100.0) && !off.is_speed_fault(f64::NAN));
+    }
+
     #[test]
     fn a_confident_estimate_outside_the_band_is_a_scale_fault() {
         let c = ScaleObserverConfig::default();

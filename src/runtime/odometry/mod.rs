@@ -160,6 +160,9 @@ pub struct OdometryFrame {
     /// `fault_max_scale`): the pose is not to be flown on (MAVLink quality −1) until an estimate
     /// within the band comes.
     pub scale_fault: bool,
+    /// The estimated speed is beyond the vehicle's (`[scale_observer] fault_max_speed_m_s`): the
+    /// pose is not to be flown on (MAVLink quality −1) while it is.
+    pub speed_fault: bool,
     /// Angular rate of the body at the frame, body (IMU) coordinates, rad/s: the last gyro
     /// sample at or before the frame (turned by `[gyro_alignment]`) less the frame's gyro bias —
     /// what MAVLink ODOMETRY's `rollspeed`/`pitchspeed`/`yawspeed` carry. Zero before any sample.
@@ -312,6 +315,8 @@ pub struct Odometry {
     /// The keyframe whose loop-closure correction the last frame was published with
     /// (`[loop_closure] hold_world_on_probation`: not a stored keyframe still on probation).
     published_world: Option<u32>,
+    /// The last frame published had a speed fault (`[scale_observer] fault_max_speed_m_s`).
+    speed_fault: bool,
     /// The mapper's map of the tracking keyframe as installed.
     tracking_map: Option<Arc<SemidenseMap>>,
     /// The tracking keyframe includes depthless pixels at a guessed depth.
@@ -511,6 +516,7 @@ impl Odometry {
             tracking_kf: None,
             tracked_against: None,
             published_world: None,
+            speed_fault: false,
             tracking_map: None,
             tracking_kf_filled: false,
             last_median_inv_depth: None,
@@ -643,6 +649,15 @@ impl Odometry {
         if f.valid && f.scale_fault {
             self.stats.scale_fault_frames += 1;
         }
+        let speed_m_s = f.result.state.nav.v_world_m_s.norm();
+        f.speed_fault = f.valid && self.cfg.scale_observer.is_speed_fault(speed_m_s);
+        if f.speed_fault {
+            self.stats.speed_fault_frames += 1;
+            if !self.speed_fault {
+                self.stats.speed_faults += 1;
+            }
+        }
+        self.speed_fault = f.speed_fault;
         self.times.total_s = started.elapsed().as_secs_f64();
         self.times.cpu_s = cpu_started
             .zip(thread_cpu_time_s())
@@ -706,6 +721,7 @@ impl Odometry {
                     resets: self.stats.resets,
                     loop_corrections: 0,
                     scale_fault: false,
+                    speed_fault: false,
                     omega_body_rad_s: Vector3::zeros(),
                     times: FrameTimes::default(),
                 };
@@ -1012,6 +1028,7 @@ impl Odometry {
             resets: self.stats.resets,
             loop_corrections: 0,
             scale_fault: false,
+            speed_fault: false,
             omega_body_rad_s: Vector3::zeros(),
             times: FrameTimes::default(),
         }

@@ -94,6 +94,10 @@ pub struct OdometryStats {
     /// valid frames published failed because of it.
     pub scale_faults: usize,
     pub scale_fault_frames: usize,
+    /// Times the estimated speed went beyond the vehicle's (`[scale_observer]
+    /// fault_max_speed_m_s`), and the valid frames published failed because of it.
+    pub speed_faults: usize,
+    pub speed_fault_frames: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
     /// Each window solve's change of the distance from the window's previous newest keyframe
