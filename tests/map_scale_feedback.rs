@@ -83,8 +83,9 @@ fn a_map_made_too_large_is_brought_back_to_metric_by_the_windows_scale() {
     // A map 15 % too large at 6 s.
     let without = replay_with_fault(&dir, 0.0, 1.15);
     print("estimated, not fed back", &without);
-    let with = replay_with_fault(&dir, 0.5, 1.15);
-    print("fed back (gain 0.5)", &with);
+    let gain = OdometryConfig::default().window.map_scale_gain;
+    let with = replay_with_fault(&dir, gain, 1.15);
+    print(&format!("fed back (the default gain, {gain})"), &with);
     let (e_without, e_with) = (
         mean_error_after_fault_pct(&without),
         mean_error_after_fault_pct(&with),

@@ -44,7 +44,7 @@ pub struct ScaleObserverConfig {
     /// finite) is a speed fault, published failed like a scale fault — the first sign of a scale
     /// that runs away, seconds to tens of seconds before the observer's horizon reads it
     /// (S-V101's real-time runaway passed 3 m/s 20 s after its loss and 5 m/s 38 s after, its
-    /// first scale fault came 45 s after; the flights here stay under 1.1 m/s). 0 = off.
+    /// first scale fault came 45 s after; healthy replays here stay under 1.7 m/s). 0 = off.
     pub fault_max_speed_m_s: f64,
 }
 
@@ -203,7 +203,7 @@ mod tests {
     #[test]
     fn a_speed_beyond_the_vehicles_is_a_speed_fault() {
         let c = ScaleObserverConfig::default();
-        assert!(!c.is_speed_fault(1.1), "the fastest healthy flight here");
+        assert!(!c.is_speed_fault(1.7), "the fastest healthy replay here");
         assert!(!c.is_speed_fault(5.0), "the limit itself");
         assert!(c.is_speed_fault(5.01));
         assert!(c.is_speed_fault(12.4), "S-V101's runaway");

@@ -93,7 +93,8 @@ pub struct WindowConfig {
     pub map_scale_initial_std: f64,
     /// Fraction of the estimated λ of the keyframe map tracked that is corrected when the next
     /// keyframe is started (its depths scaled by `e^{−gain·λ}` in the tracker and the mapper, so
-    /// the new map is propagated from a corrected one); 0 = estimate only.
+    /// the new map is propagated from a corrected one); 0 = estimate only. 0.75 since session 70
+    /// (0.5 before; docs/odometry-log.md, *Three quarters of the map's scale corrected*).
     pub map_scale_gain: f64,
     /// At most this much of λ is corrected per keyframe.
     pub map_scale_max_step: f64,
@@ -157,7 +158,7 @@ impl Default for WindowConfig {
             map_scale: true,
             map_scale_step_std: 0.02,
             map_scale_initial_std: 0.05,
-            map_scale_gain: 0.5,
+            map_scale_gain: 0.75,
             map_scale_max_step: 0.05,
             keep_across_rebuild: true,
             gyro_misalignment: true,
