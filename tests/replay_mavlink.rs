@@ -57,8 +57,8 @@ fn the_replay_streams_every_valid_frame_with_its_resets_to_a_pymavlink_peer() {
         "--quiet",
     ]);
     assert!(o.status.success(), "{}", text(&o));
-    // Loop closure on (the default, written out so that the test does not hang on it), so its
-    // jumps (if any) are counted with the resets.
+    // Loop closure on (the default, written out so that the test does not depend on the
+    // default), so its jumps (if any) are counted with the resets.
     let cfg = tmp.join("vidslam.toml");
     std::fs::write(&cfg, "[loop_closure]\nenabled = true\n").unwrap();
 

@@ -34,10 +34,10 @@ pub struct ScaleObserverConfig {
     pub position_std_m: f64,
     /// An estimate below `fault_min_scale` or above `fault_max_scale` (tracked → metric), with a
     /// standard deviation under `fault_max_rel_std` of it, is a scale fault: the published frames
-    /// are failed (MAVLink quality −1) until an estimate within them. Healthy flights stay within
-    /// 0.51–1.56 (132 replays of the demo and S-V101, offline and real time) but for one false
-    /// fault in 219 (a real-time S-V101 replay read 0.26 twice, 1.4 s failed); a real-time
-    /// S-V101 replay whose scale ran away after a 5.5 s loss measured 0.121 and 0.069.
+    /// are failed (MAVLink quality −1) until an estimate within them. Healthy flights stayed
+    /// within 0.51–1.56 over 132 replays of the demo and S-V101, offline and real time (sessions
+    /// 67–69); over the 219 kept to session 70 one real-time S-V101 replay read 0.26 twice (a
+    /// false fault, 1.4 s failed). A real-time S-V101 replay whose scale ran away after a 5.5 s loss measured 0.121 and 0.069.
     pub fault_min_scale: f64,
     pub fault_max_scale: f64,
     pub fault_max_rel_std: f64,
