@@ -6,9 +6,11 @@
 //!
 //! Layers, each using only the ones above it: [`features`] (corners and binary descriptors on a
 //! keyframe's image, guided matching), [`pnp`] (a camera pose from 3D points of an old keyframe's
-//! semidense map and their matches in a new keyframe), [`pose_graph`] (the 4-DoF graph).
+//! semidense map and their matches in a new keyframe), [`pose_graph`] (the 4-DoF graph);
+//! [`two_view`] the direction of a translation between two views whose rotation the gyro gives.
 
 pub mod closer;
 pub mod features;
 pub mod pnp;
 pub mod pose_graph;
+pub mod two_view;

@@ -188,6 +188,9 @@ pub struct ReplayReport {
     /// Of `resets`, losses by motion that relocalised on a stored keyframe covering the
     /// IMU-predicted view instead of building a new first map (`[bootstrap] relocalise`).
     pub relocalisations: u32,
+    /// Views of first maps started in flight whose translation from the keyframe was turned to
+    /// the direction their images give (`[bootstrap] reinit_shape_from_images`).
+    pub reinit_shaped_views: u32,
     /// First maps started in flight that did not start in time from the dead reckoning and were
     /// installed with guessed depths instead (`[bootstrap] reinit_guessed_depths`).
     pub reinit_guessed_keyframes: usize,
@@ -525,6 +528,7 @@ impl ReplayReport {
             resets: out.odometry.resets,
             resumes: out.odometry.resumes,
             relocalisations: out.odometry.relocalisations,
+            reinit_shaped_views: out.odometry.reinit_shaped_views,
             reinit_guessed_keyframes: out.odometry.reinit_guessed_keyframes,
             window_kept_across_rebuild: out.odometry.window_kept_across_rebuild,
             window_restarts: out.odometry.window_restarts,

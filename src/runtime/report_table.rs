@@ -177,7 +177,7 @@ impl ReplayReport {
         row(
             "resets",
             format!(
-                "{} ({} resumed on the keyframe lost, {} relocalised on a stored one{}){}",
+                "{} ({} resumed on the keyframe lost, {} relocalised on a stored one{}){}{}",
                 self.resets,
                 self.resumes,
                 self.relocalisations,
@@ -188,6 +188,10 @@ impl ReplayReport {
                 match self.window_kept_across_rebuild {
                     0 => String::new(),
                     n => format!("; {n} first maps in flight joined the window through the loss"),
+                },
+                match self.reinit_shaped_views {
+                    0 => String::new(),
+                    n => format!("; {n} views of first maps in flight shaped by the images"),
                 }
             ),
         );

@@ -174,6 +174,23 @@ pub struct BootstrapConfig {
     /// installed, and of the start velocity's prior in its adjustment, m/s: the velocity
     /// dead-reckoned through the loss is that uncertain.
     pub reinit_velocity_free_std_m_s: f64,
+    /// A first map started in flight after a loss is triangulated from views whose translation
+    /// from the map's keyframe points where the images say (corners matched to the keyframe's,
+    /// the rotation the gyro's), its length the dead reckoning's: after a loss of seconds the
+    /// dead-reckoned velocity is off by tenths of a m/s in any direction, and a map triangulated
+    /// along it comes out distorted, which the keyframe window's map scale cannot correct
+    /// (`odometry::reinit_shape`). The tracker's position follows the views.
+    pub reinit_shape_from_images: bool,
+    /// …for a view with at least this many matches within 0.004 rad of its epipolar plane…
+    pub reinit_shape_min_inliers: usize,
+    /// …and a median parallax of at least this, rad (the direction is that of the parallax).
+    pub reinit_shape_min_parallax_rad: f64,
+    /// Corners matched within this of where the gyro's rotation alone puts them, px.
+    pub reinit_shape_radius_px: f32,
+    /// The shaped view's distance from the keyframe: its median parallax times the median depth
+    /// of the last map before the loss (else the dead reckoning's distance, whose error after a
+    /// loss can be as large as the distance flown).
+    pub reinit_shape_length_from_parallax: bool,
     /// Prior standard deviation of the dead reckoning's world acceleration error, m/s².
     pub takeoff_accel_std_m_s2: f64,
     /// Noise of a tracked take-off position against the integrated one, m.
@@ -286,6 +303,11 @@ impl Default for BootstrapConfig {
             reinit_velocity_std_m_s: 0.0,
             reinit_guessed_depths: true,
             reinit_velocity_free_std_m_s: 0.5,
+            reinit_shape_from_images: true,
+            reinit_shape_min_inliers: 20,
+            reinit_shape_min_parallax_rad: 0.01,
+            reinit_shape_radius_px: 100.0,
+            reinit_shape_length_from_parallax: true,
             takeoff_accel_std_m_s2: 0.05,
             takeoff_position_std_m: 0.005,
             takeoff_max_scale_correction: 0.3,

@@ -208,7 +208,7 @@ impl Odometry {
                         self.switch_correction = None;
                     }
                     None => {
-                        // (Not reached: a switch always leaves a keyframe behind.)
+                        // A relocalisation after a loss left none behind: lost again.
                         self.lose_keyframe();
                         self.phase = Phase::Lost;
                         self.stats.resets += 1;

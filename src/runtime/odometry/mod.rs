@@ -104,6 +104,7 @@ mod loop_link;
 mod loop_log;
 mod mapper_link;
 mod refinement_jobs;
+mod reinit_shape;
 mod stats;
 mod window_link;
 
@@ -395,6 +396,8 @@ pub struct Odometry {
     /// The stored keyframe tracked was relocalised on after a loss (cleared by a return while
     /// tracking or a new keyframe).
     relocalised: bool,
+    /// The first map being started in flight, to shape its views by (`reinit_shape_from_images`).
+    reinit_shape: Option<reinit_shape::ReinitShape>,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
@@ -554,6 +557,7 @@ impl Odometry {
             guessed_snapshot: None,
             reinit_kf: None,
             relocalised: false,
+            reinit_shape: None,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
@@ -809,10 +813,11 @@ impl Odometry {
                     // take-off from rest).
                     self.restart_first_map(&frame, true);
                 } else {
+                    let frame = self.shape_reinit_view(frame.clone());
                     if let Some(tk) = self.takeoff.as_mut() {
                         tk.frames.push(frame.clone());
                     }
-                    self.observe(frame.clone());
+                    self.observe(frame);
                 }
             }
             Phase::Tracking => {
@@ -1267,6 +1272,7 @@ impl Odometry {
     fn restart_first_map(&mut self, frame: &MapFrame, guessed: bool) {
         self.window_across_loss();
         self.takeoff = self.in_flight_takeoff(frame);
+        self.start_reinit_shape(frame);
         self.start_keyframe(frame.clone(), Vec::new(), false);
         self.init_started = Some(frame.t);
         self.init_in_flight = true;

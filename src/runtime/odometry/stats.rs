@@ -20,6 +20,9 @@ pub struct OdometryStats {
     pub resumes: u32,
     /// Of `resets`, those that relocalised on a stored keyframe (`[bootstrap] relocalise`).
     pub relocalisations: u32,
+    /// Views of first maps started in flight whose translation was turned to the images'
+    /// direction (`[bootstrap] reinit_shape_from_images`).
+    pub reinit_shaped_views: u32,
     /// First maps started again in flight that joined the keyframe window across the loss
     /// (`[window] keep_across_rebuild`) instead of restarting it.
     pub window_kept_across_rebuild: u32,
