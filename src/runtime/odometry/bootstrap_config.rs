@@ -181,6 +181,12 @@ pub struct BootstrapConfig {
     /// along it comes out distorted, which the keyframe window's map scale cannot correct
     /// (`odometry::reinit_shape`). The tracker's position follows the views.
     pub reinit_shape_from_images: bool,
+    /// …if it is started at least this long after the loss, s: after a short loss (a fast turn
+    /// lost for a frame or two) the dead reckoning is still right, and in a fast turn the gyro's
+    /// own error over the turn (its scale, its axes) is as large as the parallax the images
+    /// show — S-V101 seed 2, lost in V1_01's 120 s turn and rebuilt at once: 0.18 m as
+    /// dead-reckoned, 10.8 m shaped.
+    pub reinit_shape_min_loss_s: f64,
     /// …for a view with at least this many matches within 0.004 rad of its epipolar plane…
     pub reinit_shape_min_inliers: usize,
     /// …and a median parallax of at least this, rad (the direction is that of the parallax).
@@ -304,6 +310,7 @@ impl Default for BootstrapConfig {
             reinit_guessed_depths: true,
             reinit_velocity_free_std_m_s: 0.5,
             reinit_shape_from_images: true,
+            reinit_shape_min_loss_s: 1.0,
             reinit_shape_min_inliers: 20,
             reinit_shape_min_parallax_rad: 0.01,
             reinit_shape_radius_px: 100.0,

@@ -398,6 +398,8 @@ pub struct Odometry {
     relocalised: bool,
     /// The first map being started in flight, to shape its views by (`reinit_shape_from_images`).
     reinit_shape: Option<reinit_shape::ReinitShape>,
+    /// When tracking was last lost (`[bootstrap] reinit_shape_min_loss_s`).
+    lost_since: Option<TimeNs>,
     consecutive_flagged: u32,
     /// Inlier ratio of the last tracked frame against its keyframe.
     last_inlier_ratio: f64,
@@ -558,6 +560,7 @@ impl Odometry {
             reinit_kf: None,
             relocalised: false,
             reinit_shape: None,
+            lost_since: None,
             consecutive_flagged: 0,
             last_inlier_ratio: 1.0,
             stats: OdometryStats {
@@ -875,6 +878,7 @@ impl Odometry {
                     }
                 } else if self.consecutive_flagged >= self.cfg.bootstrap.lost_after_frames {
                     self.phase = Phase::Lost;
+                    self.lost_since = Some(t);
                     self.resume = self
                         .tracker
                         .keyframe()

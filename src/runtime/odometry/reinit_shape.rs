@@ -42,11 +42,16 @@ impl Odometry {
         true
     }
 
-    /// A first map is started in flight at `frame` (its keyframe): its corners are kept to shape
-    /// the views by.
+    /// A first map is started in flight at `frame` (its keyframe), `[bootstrap]
+    /// reinit_shape_min_loss_s` or more after the loss: its corners are kept to shape the views
+    /// by.
     pub(super) fn start_reinit_shape(&mut self, frame: &MapFrame) {
         self.reinit_shape = None;
-        if !self.cfg.bootstrap.reinit_shape_from_images {
+        let b = &self.cfg.bootstrap;
+        let long_loss = self
+            .lost_since
+            .is_some_and(|since| frame.t.secs_since(since) >= b.reinit_shape_min_loss_s);
+        if !(b.reinit_shape_from_images && long_loss) {
             return;
         }
         let features = detect(&frame.image, &self.cfg.loop_closure.features);
