@@ -176,7 +176,8 @@ pub struct BootstrapConfig {
     pub reinit_velocity_free_std_m_s: f64,
     /// A first map started in flight after a loss is triangulated from views whose translation
     /// from the map's keyframe points where the images say (corners matched to the keyframe's,
-    /// the rotation the gyro's), its length the dead reckoning's: after a loss of seconds the
+    /// the rotation the gyro's), its length from the parallax (`reinit_shape_length_from_parallax`;
+    /// else the dead reckoning's): after a loss of seconds the
     /// dead-reckoned velocity is off by tenths of a m/s in any direction, and a map triangulated
     /// along it comes out distorted, which the keyframe window's map scale cannot correct
     /// (`odometry::reinit_shape`). The tracker's position follows the views.

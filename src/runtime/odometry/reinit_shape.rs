@@ -8,10 +8,14 @@
 //! distortion the keyframe window's map scale cannot take out. Here each view's translation from
 //! the first map's keyframe is turned to the direction the images give — the keyframe's corners
 //! matched to the view's around where the gyro's rotation alone puts them, and the translation
-//! direction solved from the matches with that rotation ([`translation_direction`]) — keeping the
-//! dead reckoning's length, whose error is a scale the window reads from the IMU (`[window]
-//! map_scale_rebuilt_std`). The tracker's position is moved with the view, so the first map is
-//! installed where its views were.
+//! direction solved from the matches with that rotation ([`translation_direction`]) — at a
+//! distance of the view's median parallax times the last map's median depth
+//! (`reinit_shape_length_from_parallax`; else the dead reckoning's distance, which carries the
+//! velocity's error): what that distance gets wrong is a scale, which the keyframe window reads
+//! from the IMU (`[window] map_scale_rebuilt_std`). Only after a loss of
+//! `reinit_shape_min_loss_s` or more: after a short one the dead reckoning is right, and in a fast
+//! turn the gyro's error over the turn is as large as the parallax. The tracker's position is
+//! moved with the view, so the first map is installed where its views were.
 
 use super::Odometry;
 use crate::loop_closure::features::{Descriptor, Feature, MatchConfig, detect, match_guided};
