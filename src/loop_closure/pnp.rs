@@ -137,11 +137,13 @@ fn inliers_of(
         .collect()
 }
 
-/// A small deterministic generator for the sample draws (xorshift64*).
-struct Draws(u64);
+/// A small deterministic generator for the sample draws (xorshift64*; also
+/// [`super::two_view`]'s). Seed it odd.
+pub(super) struct Draws(pub(super) u64);
 
 impl Draws {
-    fn below(&mut self, n: usize) -> usize {
+    /// The next draw in `0..n`.
+    pub(super) fn below(&mut self, n: usize) -> usize {
         self.0 ^= self.0 >> 12;
         self.0 ^= self.0 << 25;
         self.0 ^= self.0 >> 27;

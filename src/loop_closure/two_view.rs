@@ -9,6 +9,7 @@
 //! form: better conditioned than an essential matrix from five or eight points when the baseline
 //! is short and the rotation is what the gyro measures well.
 
+use super::pnp::Draws;
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
 /// RANSAC settings.
@@ -91,18 +92,11 @@ pub fn translation_direction(
             .filter(|&i| off_plane_rad(t, &ra[i], &b[i]) <= cfg.inlier_rad)
             .collect()
     };
-    let mut state = cfg.seed | 1;
-    let mut draw = |k: usize| {
-        // xorshift64*: deterministic, no dependency.
-        state ^= state >> 12;
-        state ^= state << 25;
-        state ^= state >> 27;
-        (state.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 33) as usize % k
-    };
+    let mut draws = Draws(cfg.seed | 1);
     let mut best: Vec<usize> = Vec::new();
     for _ in 0..cfg.hypotheses {
-        let i = draw(n);
-        let j = draw(n);
+        let i = draws.below(n);
+        let j = draws.below(n);
         if i == j {
             continue;
         }
