@@ -363,6 +363,64 @@ fn the_imu_reads_the_scale_of_maps_that_grow_when_the_window_estimates_it() {
     );
 }
 
+/// Keyframe maps 6 % too large, each from keyframe 12 on started with a correction `c` of its
+/// predecessor's (`set_newest_map_correction`, as `[window] map_scale_gain` does: the map left
+/// is scaled by `e^{−c}` and the next one propagated from it, so it tracks at the left one's
+/// log-scale less `c`). Returns, per keyframe that left the window, its id, the log-scale of its
+/// map as it was left (the truth: as tracked, less the correction applied when it was left) and
+/// the window's word on it.
+fn marginalised_map_scales(c: f64) -> Vec<(u32, f64, f64)> {
+    let sp = flight();
+    let mut w = KeyframeWindow::new(
+        WindowConfig {
+            visual_rotation_information_scale: 1.0,
+            visual_translation_information_scale: 1.0,
+            imu_noise_scale: 1.0,
+            ..WindowConfig::default()
+        },
+        ImuNoise::euroc_adis16448(),
+    );
+    let t0 = sp.start().add_ns(10_000_000_000);
+    let x0 = truth(&sp, t0);
+    w.reset(0, x0, &prior_cov());
+    let correction = |k: u32| if k >= 12 { c } else { 0.0 };
+    // Log-scale of keyframe k's map as tracked.
+    let mut tracked = vec![1.06f64.ln()];
+    let mut prev_true = x0;
+    let mut out = Vec::new();
+    for k in 1..=30u32 {
+        let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
+        let xt = truth(&sp, t);
+        let on = tracked[k as usize - 1];
+        push_tracked_on_scaled_map(&mut w, &sp, k, &prev_true, &xt, on.exp());
+        w.set_newest_map_correction(correction(k));
+        tracked.push(on - correction(k));
+        prev_true = xt;
+        while let Some((id, _, told)) = w.pop_marginalised_map_scale() {
+            out.push((id, tracked[id as usize] - correction(id + 1), told));
+        }
+    }
+    out
+}
+
+#[test]
+fn a_keyframe_leaving_the_window_tells_its_maps_scale_as_it_was_left() {
+    for c in [0.0, 0.01] {
+        let left = marginalised_map_scales(c);
+        // Every keyframe beyond the window's 12 left it, oldest first …
+        let ids: Vec<u32> = left.iter().map(|l| l.0).collect();
+        assert_eq!(ids, (0..19).collect::<Vec<u32>>(), "c = {c}");
+        // … with its map's log-scale as it was left (ln 1.06 = 0.058, less c once corrected):
+        // within 0.8 % the first (its λ held by the prior of the window's start), 0.2 % after.
+        for &(id, truth, told) in &left {
+            assert!(
+                (told - truth).abs() < 0.01,
+                "c = {c}: keyframe {id} left at log-scale {truth:.4}, the window says {told:.4}"
+            );
+        }
+    }
+}
+
 /// 12 keyframes on metric maps, then a loss of `gap_s` and a first map started again whose
 /// tracked translations are 1.3× the truth. The first keyframe of the new map is the tracker's
 /// dead-reckoned state (velocity 0.1 m/s off); with `keep` it joins the window by the IMU through

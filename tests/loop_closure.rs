@@ -114,24 +114,27 @@ fn fly(
     image_3: &Image<u8>,
     truth_3: &Isometry3<f64>,
 ) -> (LoopCloser, Isometry3<f64>, Option<u32>) {
-    fly_with(room, image_3, truth_3, config(), 1.0)
+    fly_with(room, image_3, truth_3, config(), 1.0, |c, m| {
+        c.attach_map(0, m)
+    })
 }
 
-/// [`fly`] with the closer's configuration `cfg` and its odometry edges' deviations times
-/// `odometry_noise_scale`.
+/// [`fly`] with the closer's configuration `cfg`, its odometry edges' deviations times
+/// `odometry_noise_scale`, and keyframe 0's map handed to the closer by `attach`.
 fn fly_with(
     room: &Room,
     image_3: &Image<u8>,
     truth_3: &Isometry3<f64>,
     cfg: LoopClosureConfig,
     odometry_noise_scale: f64,
+    attach: impl FnOnce(&mut LoopCloser, &SemidenseMap),
 ) -> (LoopCloser, Isometry3<f64>, Option<u32>) {
     let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
     let (img_a, depth_a) = room.view(0, &a);
     let mut closer = LoopCloser::new(cfg, room.camera);
     closer.set_odometry_noise_scale(odometry_noise_scale);
     closer.add_keyframe(0, &a, None, &img_a);
-    closer.attach_map(0, &room.map(&a, &img_a, &depth_a));
+    attach(&mut closer, &room.map(&a, &img_a, &depth_a));
     let d = drift();
     let mut host = (0u32, a);
     for (k, (x, yaw)) in [(0.2, 2.0), (0.5, 2.5)].into_iter().enumerate() {
@@ -202,7 +205,9 @@ fn the_odometry_noise_scale_weighs_the_odometry_against_the_loop() {
     };
     let error = |scale: f64| {
         let (closer, odometry_3, closed_to) =
-            fly_with(&room, &image_3, &truth_3, tight.clone(), scale);
+            fly_with(&room, &image_3, &truth_3, tight.clone(), scale, |c, m| {
+                c.attach_map(0, m)
+            });
         assert_eq!(closed_to, Some(0), "{:?}", closer.stats());
         let err = (closer.correction() * odometry_3).inverse() * truth_3;
         (
@@ -226,6 +231,52 @@ fn the_odometry_noise_scale_weighs_the_odometry_against_the_loop() {
     // A scale that is not a positive number is ignored.
     let (nan_m, _) = error(f64::NAN);
     assert_eq!(nan_m, held_m);
+}
+
+/// Keyframe 0's map 10 % too deep places the loop's camera off along the baseline by as much;
+/// scaled back by its window's word on it (`scale_map`, `[window] stored_map_scale_gain`),
+/// whether before or after the map comes, the loop measures as on the true map.
+#[test]
+fn a_stored_map_scaled_back_measures_its_loops_as_the_true_one() {
+    let room = Room::new();
+    let truth_3 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
+    let (image_3, _) = room.view(3, &truth_3);
+    let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
+    let deep = |m: &SemidenseMap| {
+        let mut m = m.clone();
+        m.scale_inv_depths(1.0 / 1.1);
+        m
+    };
+    let edge_error_m = |attach: &dyn Fn(&mut LoopCloser, &SemidenseMap)| {
+        let (mut closer, _, closed_to) = fly_with(&room, &image_3, &truth_3, config(), 1.0, attach);
+        assert_eq!(closed_to, Some(0), "{:?}", closer.stats());
+        let c = &closer.take_closures()[0];
+        ((a.inverse() * truth_3).inverse() * c.t_old_new)
+            .translation
+            .vector
+            .norm()
+    };
+    let exact = edge_error_m(&|c, m| c.attach_map(0, m));
+    let too_deep = edge_error_m(&|c, m| c.attach_map(0, &deep(m)));
+    let scaled_after = edge_error_m(&|c, m| {
+        c.attach_map(0, &deep(m));
+        c.scale_map(0, 1.0 / 1.1);
+    });
+    let scaled_before = edge_error_m(&|c, m| {
+        c.scale_map(0, 1.0 / 1.1);
+        c.attach_map(0, &deep(m));
+    });
+    println!(
+        "loop edge error: true map {exact:.4} m, 10 % deep {too_deep:.4} m, scaled back after / \
+         before it came {scaled_after:.4} / {scaled_before:.4} m"
+    );
+    assert!(too_deep > exact + 0.015, "{too_deep} m against {exact} m");
+    for scaled in [scaled_after, scaled_before] {
+        assert!(
+            (scaled - exact).abs() < 0.002,
+            "{scaled} m against {exact} m"
+        );
+    }
 }
 
 #[test]

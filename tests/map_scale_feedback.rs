@@ -96,3 +96,63 @@ fn a_map_made_too_large_is_brought_back_to_metric_by_the_windows_scale() {
     assert!(e_with.abs() < 3.0, "{e_with}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `[window] stored_map_scale_gain`: the map tracked at 6 s made 15 % too large, and not fed
+/// back into the chain (`map_scale_gain = 0`, so the maps after it stay large): each keyframe
+/// map that leaves the window afterwards has its stored copies scaled down by what the window
+/// read of it — the IMU's word reaches the maps loops and returns are measured against — where
+/// the maps before the fault, metric, are left nearly as they were.
+#[test]
+fn maps_made_too_large_are_scaled_back_in_their_stored_copies_as_they_leave_the_window() {
+    let dir = drive::render_builtin(scratch::dir("stored-map-scale"), 12.0, 11);
+    let mut cfg = OdometryConfig::default();
+    cfg.window.map_scale = true;
+    cfg.window.map_scale_gain = 0.0;
+    cfg.window.stored_map_scale_gain = 0.75;
+    cfg.window.stored_map_scale_in_returns = true;
+    let mut t_fault: Option<TimeNs> = None;
+    let mut injected: Option<TimeNs> = None;
+    let odo = drive::feed(
+        &dir,
+        cfg.clone(),
+        |odo, _, t| {
+            let t_fault = *t_fault.get_or_insert(t.add_ns(6_000_000_000));
+            if injected.is_none() && t >= t_fault && odo.inject_map_scale_error(1.15) {
+                injected = Some(t);
+            }
+            None
+        },
+        |_, r| assert!(r.result.state.is_finite()),
+    );
+    let injected = injected.expect("no mapped keyframe to scale after 6 s");
+    let (stats, _) = odo.finish();
+    assert_eq!(stats.resets, 0);
+    let c = &stats.stored_map_scale_corrections;
+    let mean = |w: Vec<f64>| {
+        assert!(w.len() >= 3, "{} stored maps corrected there", w.len());
+        w.iter().sum::<f64>() / w.len() as f64
+    };
+    // Keyframes started from the pad's take-off to the fault, and from 1 s after it (the
+    // window's λ has seen the large map by the time they leave).
+    let before = mean(
+        c.iter()
+            .filter(|(t, _)| *t < injected)
+            .map(|p| p.1)
+            .collect(),
+    );
+    let after = mean(
+        c.iter()
+            .filter(|(t, _)| t.secs_since(injected) > 1.0)
+            .map(|p| p.1)
+            .collect(),
+    );
+    println!(
+        "stored maps corrected by e^-c, mean c: before the fault {before:+.4}, after {after:+.4} \
+         (the fault ln 1.15 = {:+.4}; at most {} a map)",
+        1.15f64.ln(),
+        cfg.window.map_scale_max_step
+    );
+    assert!(before.abs() < 0.02, "{before}");
+    assert!(after > 0.03, "{after}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

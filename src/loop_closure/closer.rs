@@ -165,6 +165,9 @@ struct Entry {
     /// Per feature, its point in the keyframe's camera frame, m (once the map is final).
     points_cam_m: Vec<Option<Vector3<f64>>>,
     has_points: bool,
+    /// Its map's depths are to be multiplied by this ([`LoopCloser::scale_map`]), also when
+    /// the map comes after the correction.
+    depth_factor: f64,
 }
 
 /// What one new keyframe did.
@@ -362,6 +365,7 @@ impl LoopCloser {
                 points_cam_m: vec![None; features.len()],
                 features,
                 has_points: false,
+                depth_factor: 1.0,
             },
         );
         let out = self.search(id);
@@ -423,11 +427,27 @@ impl LoopCloser {
             }
             let uv = Vector2::new(f.x_px as f64, f.y_px as f64);
             if let Some(ray) = self.camera.unproject(&uv) {
-                *slot = Some(ray / med as f64);
+                *slot = Some(ray * (e.depth_factor / med as f64));
                 any = true;
             }
         }
         e.has_points = any;
+    }
+
+    /// Keyframe `id`'s map is scaled by `depth_factor` about its camera (the keyframe window's
+    /// estimate of its scale as it left the window, `[window] stored_map_scale_gain`): its
+    /// corners' points, and those of a map attached later.
+    pub fn scale_map(&mut self, id: u32, depth_factor: f64) {
+        let Some(e) = self.entries.get_mut(&id) else {
+            return;
+        };
+        if !(depth_factor.is_finite() && depth_factor > 0.0) {
+            return;
+        }
+        e.depth_factor *= depth_factor;
+        for p in e.points_cam_m.iter_mut().flatten() {
+            *p *= depth_factor;
+        }
     }
 
     /// Looks for a loop for the new keyframe `id`.

@@ -171,6 +171,7 @@ impl Config {
         for (key, v, max) in [
             ("map_scale_gain", w.map_scale_gain, 1.0),
             ("map_scale_max_step", w.map_scale_max_step, 0.5),
+            ("stored_map_scale_gain", w.stored_map_scale_gain, 1.0),
             (
                 "keep_across_rebuild_max_s",
                 w.keep_across_rebuild_max_s,

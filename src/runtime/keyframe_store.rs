@@ -172,6 +172,21 @@ impl KeyframeStore {
         true
     }
 
+    /// Multiplies the depths of stored keyframe `id` by `depth_factor` about its camera, in the
+    /// keyframe tracked against and in its map (its scale corrected, `[window]
+    /// stored_map_scale_gain`). Returns whether it is stored.
+    pub fn scale_depths(&mut self, id: u32, depth_factor: f64) -> bool {
+        let Some(e) = self.entries.iter_mut().find(|e| e.kf.id == id) else {
+            return false;
+        };
+        if !(depth_factor.is_finite() && depth_factor > 0.0) {
+            return false;
+        }
+        e.kf.scale_depths(depth_factor);
+        Arc::make_mut(&mut e.map).scale_inv_depths(1.0 / depth_factor);
+        true
+    }
+
     /// Moves stored keyframe `id` (the keyframe window corrected it).
     pub fn set_pose(&mut self, id: u32, t_world_cam: Isometry3<f64>) {
         if let Some(e) = self.entries.iter_mut().find(|e| e.kf.id == id) {
@@ -291,6 +306,37 @@ mod tests {
             Translation3::new(x_m, 0.0, 0.0),
             UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw_rad),
         )
+    }
+
+    #[test]
+    fn a_stored_keyframe_scaled_has_its_depths_and_its_map_scaled() {
+        let mut store = KeyframeStore::new(ReuseConfig::default());
+        let mut m = (*map()).clone();
+        m.points.push(crate::mapping::semidense::MapPoint {
+            u_px: 10.0,
+            v_px: 20.0,
+            inv_depth_m_inv: 0.5,
+            inv_depth_std_m_inv: 0.01,
+            num_views: 3,
+        });
+        let shared = Arc::new(m);
+        assert!(store.insert(keyframe(1, pose(0.0, 0.0)), shared.clone()));
+        assert!(store.scale_depths(1, 0.9));
+        let s = store.get(1).unwrap();
+        // The wall 2 m ahead is 1.8 m ahead in both; the map handed in elsewhere is not touched.
+        assert!(
+            (s.kf.median_depth_m - 1.8).abs() < 1e-4,
+            "{}",
+            s.kf.median_depth_m
+        );
+        let p = s.map.points[0];
+        assert!((p.inv_depth_m_inv - 0.5 / 0.9).abs() < 1e-6, "{p:?}");
+        assert!((p.inv_depth_std_m_inv - 0.01 / 0.9).abs() < 1e-6, "{p:?}");
+        assert_eq!(shared.points[0].inv_depth_m_inv, 0.5);
+        // Not stored, or not a factor: nothing.
+        assert!(!store.scale_depths(2, 0.9));
+        assert!(!store.scale_depths(1, f64::NAN) && !store.scale_depths(1, 0.0));
+        assert!((store.get(1).unwrap().kf.median_depth_m - 1.8).abs() < 1e-4);
     }
 
     #[test]

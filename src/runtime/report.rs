@@ -229,6 +229,12 @@ pub struct ReplayReport {
     pub map_scale_correction_p10: Option<f64>,
     pub map_scale_correction_p50: Option<f64>,
     pub map_scale_correction_p90: Option<f64>,
+    /// `[window] stored_map_scale_gain`: stored keyframe maps rescaled as they left the window,
+    /// and the factor their depths were multiplied by: 10th / 50th / 90th percentiles.
+    pub stored_map_scale_corrections: usize,
+    pub stored_map_scale_correction_p10: Option<f64>,
+    pub stored_map_scale_correction_p50: Option<f64>,
+    pub stored_map_scale_correction_p90: Option<f64>,
     /// In-flight keyframe adjustments applied (`[keyframe_bundle]`, on a thread of their own
     /// started when a new keyframe is installed), their wall time, ms, and the median over
     /// keyframes of each adjustment's median relative inverse-depth change, %; take-off
@@ -387,6 +393,13 @@ impl ReplayReport {
                 .map(|c| (-c).exp()),
         );
         let map_scale_pct = |p: f64| percentile_if_any(&map_scale, p);
+        let stored_scale = sorted(
+            out.odometry
+                .stored_map_scale_corrections
+                .iter()
+                .map(|(_, c)| (-c).exp()),
+        );
+        let stored_scale_pct = |p: f64| percentile_if_any(&stored_scale, p);
         let rest = out.odometry.rest_imu_density;
         let kb_ms = sorted(out.odometry.keyframe_bundle_s().iter().map(|t| t * 1e3));
         let map_lat = sorted(
@@ -553,6 +566,10 @@ impl ReplayReport {
             map_scale_correction_p10: map_scale_pct(10.0),
             map_scale_correction_p50: map_scale_pct(50.0),
             map_scale_correction_p90: map_scale_pct(90.0),
+            stored_map_scale_corrections: stored_scale.len(),
+            stored_map_scale_correction_p10: stored_scale_pct(10.0),
+            stored_map_scale_correction_p50: stored_scale_pct(50.0),
+            stored_map_scale_correction_p90: stored_scale_pct(90.0),
             keyframe_bundles: kb_ms.len(),
             keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
             keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),

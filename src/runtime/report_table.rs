@@ -413,6 +413,17 @@ impl ReplayReport {
                         self.map_scale_corrections
                     );
                 }
+                if let (Some(p10), Some(p50), Some(p90)) = (
+                    self.stored_map_scale_correction_p10,
+                    self.stored_map_scale_correction_p50,
+                    self.stored_map_scale_correction_p90,
+                ) {
+                    text += &format!(
+                        ", {} stored maps rescaled as they left, p10/p50/p90 {p10:.3} / \
+                         {p50:.3} / {p90:.3}",
+                        self.stored_map_scale_corrections
+                    );
+                }
                 text
             });
         }

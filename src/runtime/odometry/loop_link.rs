@@ -45,6 +45,10 @@ enum LoopJob {
         map: Arc<SemidenseMap>,
     },
     OdometryNoiseScale(f64),
+    ScaleMap {
+        id: u32,
+        depth_factor: f64,
+    },
 }
 
 /// What the thread reports after each job.
@@ -68,6 +72,7 @@ fn run(closer: &mut LoopCloser, job: LoopJob) {
         }
         LoopJob::Map { id, map } => closer.attach_map(id, &map),
         LoopJob::OdometryNoiseScale(s) => closer.set_odometry_noise_scale(s),
+        LoopJob::ScaleMap { id, depth_factor } => closer.scale_map(id, depth_factor),
     }
 }
 
@@ -168,6 +173,11 @@ impl LoopLink {
             started: HashMap::new(),
             closures: Vec::new(),
         }
+    }
+
+    /// Keyframe `id`'s map in the closer is scaled by `depth_factor` about its camera.
+    pub(super) fn scale_map(&mut self, id: u32, depth_factor: f64) {
+        self.submit(LoopJob::ScaleMap { id, depth_factor });
     }
 
     fn submit(&mut self, job: LoopJob) {

@@ -114,6 +114,9 @@ pub struct OdometryStats {
     /// With `[window] map_scale_gain`: each correction `c` of a keyframe map's log-scale (its
     /// depths scaled by `e^{−c}` when the next keyframe was started).
     pub window_map_scale_corrections: Vec<f64>,
+    /// With `[window] stored_map_scale_gain`: each keyframe map whose stored copies were
+    /// corrected as it left the window, (keyframe time, `c`): their depths scaled by `e^{−c}`.
+    pub stored_map_scale_corrections: Vec<(TimeNs, f64)>,
     /// The gyro's axes turned onto the camera's body frame in flight (`[gyro_alignment]`).
     pub gyro_alignment: GyroAlignmentStats,
     /// The loop closer's counters (`[loop_closure] enabled`).

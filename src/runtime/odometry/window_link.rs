@@ -28,6 +28,7 @@ impl Odometry {
         };
         let pre = self.preintegrate_buffered(&xn, x.nav.t);
         self.window.push_new_map(self.next_kf_id, x, pre);
+        self.correct_stored_map_scales();
         self.stats.window_kept_across_rebuild += 1;
     }
 
@@ -134,6 +135,7 @@ impl Odometry {
         let pre = self.preintegrate_buffered(&x_prev, t);
         let old = result.state;
         self.window.push(id, old, pre, visual);
+        self.correct_stored_map_scales();
         if across_return {
             self.window.set_newest_visual_on_own_map();
         }
@@ -228,6 +230,36 @@ impl Odometry {
         );
         self.window.set_newest_map_correction(c);
         self.stats.window_map_scale_corrections.push(c);
+    }
+
+    /// `[window] stored_map_scale_gain`: each keyframe that left the window has the loop
+    /// closer's copy of its map (and with `stored_map_scale_in_returns` the stored keyframe
+    /// returns track against) scaled by the window's last word on it: `e^{−g (λ − c)}`, `λ − c`
+    /// its log-scale as it was left
+    /// ([`crate::smoother::KeyframeWindow::pop_marginalised_map_scale`]), at most
+    /// `map_scale_max_step`. Not a keyframe tracked now (a return to it): the tracker holds a
+    /// copy of its own, which is stored again as it is when it is left.
+    fn correct_stored_map_scales(&mut self) {
+        let w = &self.cfg.window;
+        let (gain, max, returns) = (
+            w.stored_map_scale_gain,
+            w.map_scale_max_step,
+            w.stored_map_scale_in_returns,
+        );
+        while let Some((id, t, left)) = self.window.pop_marginalised_map_scale() {
+            let c = (gain * left).clamp(-max, max);
+            if gain <= 0.0 || !c.is_finite() || c == 0.0 || self.tracking_kf == Some(id) {
+                continue;
+            }
+            let depth_factor = (-c).exp();
+            let stored = returns && self.store.scale_depths(id, depth_factor);
+            if let Some(link) = &mut self.loop_closer {
+                link.scale_map(id, depth_factor);
+            }
+            if stored || self.loop_closer.is_some() {
+                self.stats.stored_map_scale_corrections.push((t, c));
+            }
+        }
     }
 
     /// Multiplies the depths of keyframe `id`'s map, the one tracked against, by `depth_factor`
