@@ -312,9 +312,10 @@ fn push_tracked_on_scaled_map(
     w.solve();
 }
 
-fn run_growing_maps(map_scale: bool) -> (f64, f64) {
-    let sp = flight();
-    let mut w = KeyframeWindow::new(
+/// A window that weighs the relative poses and the noise-free IMU at their own noise (the
+/// defaults temper both), with or without the maps' scale.
+fn untempered_window(map_scale: bool) -> KeyframeWindow {
+    KeyframeWindow::new(
         WindowConfig {
             visual_rotation_information_scale: 1.0,
             visual_translation_information_scale: 1.0,
@@ -323,7 +324,12 @@ fn run_growing_maps(map_scale: bool) -> (f64, f64) {
             ..WindowConfig::default()
         },
         ImuNoise::euroc_adis16448(),
-    );
+    )
+}
+
+fn run_growing_maps(map_scale: bool) -> (f64, f64) {
+    let sp = flight();
+    let mut w = untempered_window(map_scale);
     let t0 = sp.start().add_ns(10_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());
@@ -371,15 +377,7 @@ fn the_imu_reads_the_scale_of_maps_that_grow_when_the_window_estimates_it() {
 /// the window's word on it.
 fn marginalised_map_scales(c: f64) -> Vec<(u32, f64, f64)> {
     let sp = flight();
-    let mut w = KeyframeWindow::new(
-        WindowConfig {
-            visual_rotation_information_scale: 1.0,
-            visual_translation_information_scale: 1.0,
-            imu_noise_scale: 1.0,
-            ..WindowConfig::default()
-        },
-        ImuNoise::euroc_adis16448(),
-    );
+    let mut w = untempered_window(true);
     let t0 = sp.start().add_ns(10_000_000_000);
     let x0 = truth(&sp, t0);
     w.reset(0, x0, &prior_cov());

@@ -9,7 +9,8 @@ mod scratch;
 use std::path::PathBuf;
 use vidslam::dataset::AslDataset;
 use vidslam::runtime::map_depth::keyframe_depth_errors;
-use vidslam::runtime::odometry::OdometryConfig;
+use vidslam::runtime::mapping_worker::MappingOutput;
+use vidslam::runtime::odometry::{OdometryConfig, OdometryStats};
 use vidslam::time::TimeNs;
 
 /// The first 12 s of the built-in flight (2 s on the pad, the take-off and the first
@@ -18,12 +19,13 @@ fn first_figure_eight() -> PathBuf {
     drive::render_builtin(scratch::dir("map-scale-feedback"), 12.0, 11)
 }
 
-/// Replays `dir` offline with the map tracked at 6 s made `depth_factor` too large, and returns
-/// per keyframe started after the fault (time since it, s; median signed depth error, %).
-fn replay_with_fault(dir: &std::path::Path, gain: f64, depth_factor: f64) -> Vec<(f64, f64)> {
-    let mut cfg = OdometryConfig::default();
-    cfg.window.map_scale = true;
-    cfg.window.map_scale_gain = gain;
+/// Replays `dir` offline with `cfg` and the map tracked at 6 s made `depth_factor` too large;
+/// returns the odometry's outputs and when the fault was injected.
+fn run_with_fault(
+    dir: &std::path::Path,
+    cfg: OdometryConfig,
+    depth_factor: f64,
+) -> (OdometryStats, MappingOutput, TimeNs) {
     let mut t_fault: Option<TimeNs> = None;
     let mut injected: Option<TimeNs> = None;
     let odo = drive::feed(
@@ -41,6 +43,16 @@ fn replay_with_fault(dir: &std::path::Path, gain: f64, depth_factor: f64) -> Vec
     let injected = injected.expect("no mapped keyframe to scale after 6 s");
     let (stats, mapping) = odo.finish();
     assert_eq!(stats.resets, 0);
+    (stats, mapping, injected)
+}
+
+/// [`run_with_fault`] with the window's scale fed back by `gain`; returns per keyframe started
+/// after the fault (time since it, s; median signed depth error, %).
+fn replay_with_fault(dir: &std::path::Path, gain: f64, depth_factor: f64) -> Vec<(f64, f64)> {
+    let mut cfg = OdometryConfig::default();
+    cfg.window.map_scale = true;
+    cfg.window.map_scale_gain = gain;
+    let (_, mapping, injected) = run_with_fault(dir, cfg, depth_factor);
     let ds = AslDataset::open(dir).unwrap();
     let errors =
         keyframe_depth_errors(&ds, &mapping.keyframe_maps, &mapping.keyframe_times).unwrap();
@@ -110,23 +122,7 @@ fn maps_made_too_large_are_scaled_back_in_their_stored_copies_as_they_leave_the_
     cfg.window.map_scale_gain = 0.0;
     cfg.window.stored_map_scale_gain = 0.75;
     cfg.window.stored_map_scale_in_returns = true;
-    let mut t_fault: Option<TimeNs> = None;
-    let mut injected: Option<TimeNs> = None;
-    let odo = drive::feed(
-        &dir,
-        cfg.clone(),
-        |odo, _, t| {
-            let t_fault = *t_fault.get_or_insert(t.add_ns(6_000_000_000));
-            if injected.is_none() && t >= t_fault && odo.inject_map_scale_error(1.15) {
-                injected = Some(t);
-            }
-            None
-        },
-        |_, r| assert!(r.result.state.is_finite()),
-    );
-    let injected = injected.expect("no mapped keyframe to scale after 6 s");
-    let (stats, _) = odo.finish();
-    assert_eq!(stats.resets, 0);
+    let (stats, _, injected) = run_with_fault(&dir, cfg.clone(), 1.15);
     let c = &stats.stored_map_scale_corrections;
     let mean = |w: Vec<f64>| {
         assert!(w.len() >= 3, "{} stored maps corrected there", w.len());
