@@ -20,7 +20,9 @@
 //! about the world vertical, and the camera's x axis (image right) stays horizontal on a drone —
 //! the IMU's may not (V1_01's body x points nearly up).
 
-use super::features::{Descriptor, Feature, FeatureConfig, MatchConfig, detect, match_guided};
+use super::features::{
+    Descriptor, Feature, FeatureConfig, MatchConfig, detect, match_guided, predicted_px,
+};
 use super::pnp::{PnpConfig, solve_from_prior};
 use super::pose_graph::{EdgeNoise, PoseGraph};
 use crate::camera::CameraModel;
@@ -483,12 +485,8 @@ impl LoopCloser {
             for (k, (f, p)) in old.features.iter().zip(&old.points_cam_m).enumerate() {
                 let Some(p) = p else { continue };
                 let q = prior_t_new_old * Point3::from(*p);
-                let uv = self
-                    .camera
-                    .project(&q.coords)
-                    .filter(|uv| self.camera.in_image(uv, 0.0));
                 refs.push(k);
-                predicted.push(uv.map(|uv| [uv.x as f32, uv.y as f32]));
+                predicted.push(predicted_px(&self.camera, &q.coords));
                 descriptors.push(f.descriptor);
             }
             let pairs = match_guided(&predicted, &descriptors, &new.features, &self.cfg.matching);

@@ -31,7 +31,9 @@
 //!   one-to-one. The small search region is what makes the ambiguity of a repetitive scene
 //!   manageable.
 
+use crate::camera::CameraModel;
 use crate::image::Image;
+use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::sync::OnceLock;
 
@@ -207,6 +209,15 @@ impl Default for MatchConfig {
             ratio: 0.8,
         }
     }
+}
+
+/// A reference feature's predicted pixel for [`match_guided`]: its point `p_cam` (in the query
+/// camera's frame, any length along its ray) projected, if that lands inside the image.
+pub fn predicted_px(camera: &CameraModel, p_cam: &Vector3<f64>) -> Option<[f32; 2]> {
+    camera
+        .project(p_cam)
+        .filter(|uv| camera.in_image(uv, 0.0))
+        .map(|uv| [uv.x as f32, uv.y as f32])
 }
 
 /// Matches reference features (e.g. an old keyframe's) to `query` features (a new image) given

@@ -18,7 +18,9 @@
 //! moved with the view, so the first map is installed where its views were.
 
 use super::Odometry;
-use crate::loop_closure::features::{Descriptor, Feature, MatchConfig, detect, match_guided};
+use crate::loop_closure::features::{
+    Descriptor, Feature, MatchConfig, detect, match_guided, predicted_px,
+};
 use crate::loop_closure::two_view::{TwoViewConfig, translation_direction};
 use crate::runtime::mapping_worker::MapFrame;
 use nalgebra::{Isometry3, Translation3, Vector2, Vector3};
@@ -94,11 +96,7 @@ impl Odometry {
         let predicted: Vec<Option<[f32; 2]>> = shape
             .rays
             .iter()
-            .map(|r| {
-                cam.project(&(r_view_kf * r))
-                    .filter(|uv| cam.in_image(uv, 0.0))
-                    .map(|uv| [uv.x as f32, uv.y as f32])
-            })
+            .map(|r| predicted_px(cam, &(r_view_kf * r)))
             .collect();
         let query = detect(&frame.image, &self.cfg.loop_closure.features);
         let matching = MatchConfig {
