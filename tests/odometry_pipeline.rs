@@ -6,7 +6,7 @@ mod drive;
 mod scratch;
 
 use std::path::PathBuf;
-use vidslam::dataset::{AslDataset, shared_data_or_skip};
+use vidslam::dataset::{AslDataset, StampedPose, Trajectory, shared_data_or_skip};
 use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
 use vidslam::runtime::map_depth::{keyframe_depth_errors, median};
@@ -1289,6 +1289,30 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
     assert_eq!(edges.evaluated, loops.len());
     assert!(loops.iter().all(|r| r.old_t < r.new_t));
     assert!(edges.edge_m_max < 0.05, "{edges:?}");
+    // The keyframes as the graph placed them at the end (`keyframes_graph.tum`): every keyframe
+    // the closer took, in time order, each at a frame's time, on the truth's path.
+    let hindsight = Trajectory::new(
+        (closed.odometry.loop_keyframe_poses.iter())
+            .map(|&(t, t_world_body)| StampedPose { t, t_world_body })
+            .collect(),
+    );
+    assert_eq!(hindsight.len(), stats.keyframes);
+    assert!(hindsight.poses.windows(2).all(|w| w[0].t < w[1].t));
+    assert!(
+        (hindsight.poses.iter()).all(|p| closed.frames.iter().any(|f| f.t == p.t)),
+        "a keyframe at no frame's time"
+    );
+    let gt = ds.ground_truth().unwrap().unwrap().trajectory();
+    let e_kf = evaluate(&gt, &hindsight, &EvalOptions::default()).unwrap();
+    println!(
+        "keyframes in hindsight: {} at ATE {:.2} cm",
+        hindsight.len(),
+        e_kf.ate_rmse_m * 100.0
+    );
+    assert!(
+        e_kf.ate_rmse_m < 2.0 * e_closed.ate_rmse_m.max(0.005),
+        "{e_kf:?}"
+    );
     assert_eq!(plain.frames.len(), closed.frames.len());
     let mut moved = 0;
     for (a, b) in plain.frames.iter().zip(&closed.frames) {

@@ -1,9 +1,10 @@
 //! `vidslam replay`: run the odometry over a recorded ASL/EuRoC dataset and evaluate it.
 
 use crate::cli::mavlink::{MavlinkOutputArgs, finish_sender};
-use crate::dataset::{AslDataset, TrajectoryFormat};
+use crate::dataset::{AslDataset, StampedPose, Trajectory, TrajectoryFormat};
 use crate::eval::imu_consistency::implied_accel_bias;
 use crate::eval::plot_report;
+use crate::eval::{EvalOptions, evaluate};
 use crate::output::{Endpoint, MavlinkSender};
 use crate::runtime::fc_sample::fc_sample;
 use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
@@ -251,6 +252,18 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         let p = a.out.join("imu_scale.csv");
         std::fs::write(&p, imu_scale_csv(&out.odometry.imu_scale))
             .with_context(|| format!("writing {}", p.display()))?;
+    }
+    if !out.odometry.loop_keyframe_poses.is_empty() {
+        let poses = (out.odometry.loop_keyframe_poses.iter())
+            .map(|&(t, t_world_body)| StampedPose { t, t_world_body })
+            .collect();
+        let graph = Trajectory::new(poses);
+        graph.write(&a.out.join("keyframes_graph.tum"), TrajectoryFormat::Tum)?;
+        if let Some(gt_poses) = &gt_poses {
+            report.graph_keyframe_ate_m = evaluate(gt_poses, &graph, &EvalOptions::default())
+                .ok()
+                .map(|e| e.ate_rmse_m);
+        }
     }
     if !out.odometry.loop_closures.is_empty() {
         let loops = &out.odometry.loop_closures;

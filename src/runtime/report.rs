@@ -356,6 +356,11 @@ pub struct ReplayReport {
     /// the graph's predictions they replaced, m; absent without loops or ground truth.
     #[serde(default)]
     pub loop_edges: Option<LoopEdgeSummary>,
+    /// ATE RMSE (SE3 alignment) of the keyframes as the loop closer's graph placed them at the
+    /// end (`keyframes_graph.tum`), m: the map in hindsight, against the published poses'
+    /// `ate_rmse_m` as they were then; absent without loop closure or ground truth.
+    #[serde(default)]
+    pub graph_keyframe_ate_m: Option<f64>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -633,6 +638,7 @@ impl ReplayReport {
                 .map(|v| [v.x, v.y, v.z].map(f64::to_degrees)),
             loop_closure: out.odometry.loop_closure.clone(),
             loop_edges: None,
+            graph_keyframe_ate_m: None,
             gyro_alignment_deg: g.applied_rad.map(f64::to_degrees),
             gyro_alignment_estimate_deg: g.estimate_rad.map(|v| v.map(f64::to_degrees)),
             gyro_alignment_std_deg: g.estimate_std_rad.map(|v| v.map(f64::to_degrees)),

@@ -243,6 +243,16 @@ impl ReplayReport {
                     ),
                 );
             }
+            if let Some(ate_m) = self.graph_keyframe_ate_m {
+                row(
+                    "keyframes in hindsight",
+                    format!(
+                        "ATE RMSE {:.4} m of the keyframes as the graph placed them at the end \
+                         (keyframes_graph.tum)",
+                        ate_m
+                    ),
+                );
+            }
             if l.guided_returns > 0 {
                 row(
                     "guided returns",

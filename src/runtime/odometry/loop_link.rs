@@ -76,6 +76,14 @@ fn run(closer: &mut LoopCloser, job: LoopJob) {
     }
 }
 
+/// A keyframe as handed to the closer ([`LoopLink::started`]).
+#[derive(Clone, Copy)]
+struct Started {
+    t: TimeNs,
+    host: Option<u32>,
+    t_world_cam: Isometry3<f64>,
+}
+
 enum Runner {
     Inline(Box<LoopCloser>),
     Thread {
@@ -111,10 +119,10 @@ pub(super) struct LoopLink {
     jobs_dropped: usize,
     /// Returns to stored keyframes started from the graph's placement.
     pub(super) guided_returns: usize,
-    /// Each keyframe handed to the closer: its time (for the loops' records) and the keyframe it
+    /// Each keyframe handed to the closer: its time (for the loops' records), the keyframe it
     /// was started from (one the closer's thread has not taken in yet carries its host's
-    /// correction, as the closer will give it).
-    started: HashMap<u32, (TimeNs, Option<u32>)>,
+    /// correction, as the closer will give it) and its camera pose as handed over.
+    started: HashMap<u32, Started>,
     /// Every loop closed, in order (`OUT/loops.csv`).
     closures: Vec<LoopRecord>,
 }
@@ -230,8 +238,8 @@ impl LoopLink {
         let started = &self.started;
         self.closures.extend(closures.iter().filter_map(|c| {
             Some(LoopRecord {
-                new_t: started.get(&c.new_id)?.0,
-                old_t: started.get(&c.old_id)?.0,
+                new_t: started.get(&c.new_id)?.t,
+                old_t: started.get(&c.old_id)?.t,
                 closure: *c,
             })
         }));
@@ -241,6 +249,22 @@ impl LoopLink {
     pub(super) fn closures(&mut self) -> &[LoopRecord] {
         self.receive();
         &self.closures
+    }
+
+    /// Every keyframe the closer holds, by time: its camera pose as the graph now places it (its
+    /// correction times its pose as handed over) — the trajectory of the keyframes in hindsight
+    /// (real time: as of the closer's last report).
+    pub(super) fn keyframe_poses(&mut self) -> Vec<(TimeNs, Isometry3<f64>)> {
+        self.receive();
+        let mut out: Vec<_> = (self.started.iter())
+            .filter_map(|(id, s)| {
+                let c = self.by_keyframe.get(id)?;
+                let t_world_cam = c * s.t_world_cam;
+                se3::is_finite(&t_world_cam).then_some((s.t, t_world_cam))
+            })
+            .collect();
+        out.sort_by_key(|&(t, _)| t);
+        out
     }
 
     /// The correction of the odometry's world while keyframe `tracked` is tracked: that
@@ -256,7 +280,7 @@ impl LoopLink {
             if let Some(c) = self.by_keyframe.get(&k).filter(|c| se3::is_finite(c)) {
                 return *c;
             }
-            id = self.started.get(&k).and_then(|&(_, host)| host);
+            id = self.started.get(&k).and_then(|s| s.host);
         }
         self.correction
     }
@@ -356,7 +380,15 @@ impl Odometry {
         }
         // As many as the closer keeps at most.
         if link.started.len() < self.cfg.loop_closure.max_keyframes {
-            link.started.insert(id, (t, left.map(|l| l.id)));
+            let host = left.map(|l| l.id);
+            link.started.insert(
+                id,
+                Started {
+                    t,
+                    host,
+                    t_world_cam,
+                },
+            );
         }
         link.submit(LoopJob::Keyframe {
             id,
@@ -438,28 +470,61 @@ mod tests {
         link.by_keyframe.insert(3, stored);
         link.by_keyframe.insert(40, newest);
         link.correction = newest;
-        let t = TimeNs(0);
+        let from = |host| Started {
+            t: TimeNs(0),
+            host,
+            t_world_cam: Isometry3::identity(),
+        };
         // 41 was started from stored keyframe 3 (a return), 42 from 41: neither in the graph yet.
-        link.started.insert(41, (t, Some(3)));
-        link.started.insert(42, (t, Some(41)));
+        link.started.insert(41, from(Some(3)));
+        link.started.insert(42, from(Some(41)));
         assert!(close(&link.correction_for(Some(42)), &stored));
         assert!(close(&link.correction_for(Some(41)), &stored));
         // A chain longer than MAX_HOST_STEPS, or one that ends unknown: the newest keyframe's.
         let m = MAX_HOST_STEPS as u32;
         for k in 100..100 + m {
-            link.started.insert(k + 1, (t, Some(k)));
+            link.started.insert(k + 1, from(Some(k)));
         }
-        link.started.insert(100, (t, Some(3)));
+        link.started.insert(100, from(Some(3)));
         // 100 + m - 1 is m links from 3, 100 + m one more.
         assert!(close(&link.correction_for(Some(100 + m - 1)), &stored));
         assert!(close(&link.correction_for(Some(100 + m)), &newest));
-        link.started.insert(50, (t, Some(49)));
+        link.started.insert(50, from(Some(49)));
         assert!(close(&link.correction_for(Some(50)), &newest));
         // Once the closer has taken a keyframe in, its own correction counts, not its host's.
         let own = yawed(0.1, 0.4);
         link.by_keyframe.insert(41, own);
         assert!(close(&link.correction_for(Some(41)), &own));
         assert!(close(&link.correction_for(Some(42)), &own));
+    }
+
+    /// The keyframes in hindsight: each keyframe's pose as handed over, moved by its correction,
+    /// in time order; one the closer has given no correction yet is left out.
+    #[test]
+    fn the_keyframes_in_hindsight_are_their_poses_moved_by_their_corrections() {
+        let cfg = LoopClosureConfig::default();
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let handed = [
+            (7, 30, yawed(0.1, 1.0)),
+            (5, 10, yawed(0.0, 0.0)),
+            (6, 20, yawed(0.05, 0.5)),
+        ];
+        for &(id, t_ns, t_world_cam) in &handed {
+            let started = Started {
+                t: TimeNs(t_ns),
+                host: None,
+                t_world_cam,
+            };
+            link.started.insert(id, started);
+        }
+        let c = yawed(0.02, 0.1);
+        link.by_keyframe.insert(5, Isometry3::identity());
+        link.by_keyframe.insert(7, c);
+        let poses = link.keyframe_poses();
+        assert_eq!(poses.len(), 2);
+        assert_eq!((poses[0].0, poses[1].0), (TimeNs(10), TimeNs(30)));
+        assert!(close(&poses[0].1, &handed[1].2));
+        assert!(close(&poses[1].1, &(c * handed[0].2)));
     }
 
     /// Jumps of the published pose are signalled as resets only once the pose has moved beyond

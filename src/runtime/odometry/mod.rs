@@ -1048,6 +1048,10 @@ impl Odometry {
         self.record_gyro_alignment();
         if let Some(link) = &mut self.loop_closer {
             self.stats.loop_closures = link.closures().to_vec();
+            let t_cam_body = self.rig.t_body_cam.inverse();
+            self.stats.loop_keyframe_poses = (link.keyframe_poses().into_iter())
+                .map(|(t, t_world_cam)| (t, t_world_cam * t_cam_body))
+                .collect();
         }
         if let Some(r) = self.refiner.take() {
             r.finish();

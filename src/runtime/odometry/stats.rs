@@ -124,6 +124,11 @@ pub struct OdometryStats {
     /// Every loop closed, in order (`OUT/loops.csv`; real time: those the closer's thread had
     /// reported by the last frame).
     pub loop_closures: Vec<LoopRecord>,
+    /// Every keyframe the loop closer holds, by time, with its body pose `t_world_body` as the
+    /// graph placed it at the end (`OUT/keyframes_graph.tum`: the keyframes' trajectory in
+    /// hindsight, every loop applied to every keyframe; what was published is each frame's pose
+    /// as it was then).
+    pub loop_keyframe_poses: Vec<(TimeNs, Isometry3<f64>)>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
