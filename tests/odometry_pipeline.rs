@@ -6,7 +6,7 @@ mod drive;
 mod scratch;
 
 use std::path::PathBuf;
-use vidslam::dataset::{AslDataset, StampedPose, Trajectory, shared_data_or_skip};
+use vidslam::dataset::{AslDataset, Trajectory, shared_data_or_skip};
 use vidslam::eval::{EvalOptions, EvalReport, evaluate};
 use vidslam::image::Image;
 use vidslam::runtime::map_depth::{keyframe_depth_errors, median};
@@ -1291,11 +1291,7 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
     assert!(edges.edge_m_max < 0.05, "{edges:?}");
     // The keyframes as the graph placed them at the end (`keyframes_graph.tum`): every keyframe
     // the closer took, in time order, each at a frame's time, on the truth's path.
-    let hindsight = Trajectory::new(
-        (closed.odometry.loop_keyframe_poses.iter())
-            .map(|&(t, t_world_body)| StampedPose { t, t_world_body })
-            .collect(),
-    );
+    let hindsight = Trajectory::new(closed.odometry.loop_keyframe_poses.clone());
     assert_eq!(hindsight.len(), stats.keyframes);
     assert!(hindsight.poses.windows(2).all(|w| w[0].t < w[1].t));
     assert!(

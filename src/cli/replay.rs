@@ -1,7 +1,7 @@
 //! `vidslam replay`: run the odometry over a recorded ASL/EuRoC dataset and evaluate it.
 
 use crate::cli::mavlink::{MavlinkOutputArgs, finish_sender};
-use crate::dataset::{AslDataset, StampedPose, Trajectory, TrajectoryFormat};
+use crate::dataset::{AslDataset, Trajectory, TrajectoryFormat};
 use crate::eval::imu_consistency::implied_accel_bias;
 use crate::eval::plot_report;
 use crate::eval::{EvalOptions, evaluate};
@@ -254,10 +254,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
             .with_context(|| format!("writing {}", p.display()))?;
     }
     if !out.odometry.loop_keyframe_poses.is_empty() {
-        let poses = (out.odometry.loop_keyframe_poses.iter())
-            .map(|&(t, t_world_body)| StampedPose { t, t_world_body })
-            .collect();
-        let graph = Trajectory::new(poses);
+        let graph = Trajectory::new(out.odometry.loop_keyframe_poses.clone());
         graph.write(&a.out.join("keyframes_graph.tum"), TrajectoryFormat::Tum)?;
         if let Some(gt_poses) = &gt_poses {
             report.graph_keyframe_ate_m = evaluate(gt_poses, &graph, &EvalOptions::default())

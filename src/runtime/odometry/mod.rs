@@ -76,6 +76,7 @@ use super::takeoff::{RefinedTakeoff, TakeoffRecord, TakeoffRig};
 use super::thread_clock::thread_cpu_time_s;
 use super::true_view_poses::TrueCameraPoses;
 use crate::camera::{CameraModel, PixelRays, Vignette, correct_in_place};
+use crate::dataset::StampedPose;
 use crate::image::{Image, Pyramid};
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::scale_alignment::AlignmentPrior;
@@ -1050,7 +1051,10 @@ impl Odometry {
             self.stats.loop_closures = link.closures().to_vec();
             let t_cam_body = self.rig.t_body_cam.inverse();
             self.stats.loop_keyframe_poses = (link.keyframe_poses().into_iter())
-                .map(|(t, t_world_cam)| (t, t_world_cam * t_cam_body))
+                .map(|(t, t_world_cam)| StampedPose {
+                    t,
+                    t_world_body: t_world_cam * t_cam_body,
+                })
                 .collect();
         }
         if let Some(r) = self.refiner.take() {

@@ -128,7 +128,7 @@ pub struct OdometryStats {
     /// graph placed it at the end (`OUT/keyframes_graph.tum`: the keyframes' trajectory in
     /// hindsight, every loop applied to every keyframe; what was published is each frame's pose
     /// as it was then).
-    pub loop_keyframe_poses: Vec<(TimeNs, Isometry3<f64>)>,
+    pub loop_keyframe_poses: Vec<StampedPose>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]
