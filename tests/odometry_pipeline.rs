@@ -1062,6 +1062,17 @@ fn laps_return_to_stored_keyframes_and_the_turn_on_the_spot_keeps_tracking() {
         (window_ratio - 1.0).abs() < 0.01,
         "window ratio {window_ratio}"
     );
+    // Each solve moves the present (tracked → solved) by what the window and tracking disagree
+    // on: here, where the IMU agrees with the images, by millimetres (S-V101's real IMU: 1.9 cm
+    // median, docs/odometry-log.md session 74).
+    let (n_moves, present_move_m) = median_of(with.odometry.window_present_moves_m.clone());
+    println!("window's moves of the present: {n_moves}, median {present_move_m:.4} m");
+    assert!(
+        n_moves > 20 && n_moves <= with.odometry.window_solve_s.len(),
+        "{n_moves} moves for {} solves",
+        with.odometry.window_solve_s.len()
+    );
+    assert!(present_move_m < 0.005, "median move {present_move_m} m");
     // Zero-velocity updates hold the 2 s idle after the landing (src/sim/flights.rs), and fire
     // only where the vehicle is (nearly) at rest: after the take-off, every frame whose velocity is
     // exactly zero has a true speed under the updates' bound (the end of the hover turn, where

@@ -223,6 +223,10 @@ pub struct ReplayReport {
     pub window_baseline_ratio_p10: Option<f64>,
     pub window_baseline_ratio_p50: Option<f64>,
     pub window_baseline_ratio_p90: Option<f64>,
+    /// Each window solve's move of the present (tracked position → solved), m: 50th / 90th
+    /// percentiles.
+    pub window_present_move_m_p50: Option<f64>,
+    pub window_present_move_m_p90: Option<f64>,
     /// `[window] map_scale_gain`: keyframe maps whose scale was corrected by the window's
     /// estimate, and the factor their depths were multiplied by: 10th / 50th / 90th percentiles.
     pub map_scale_corrections: usize,
@@ -391,6 +395,7 @@ impl ReplayReport {
         let window_ms = sorted(out.odometry.window_solve_s.iter().map(|t| t * 1e3));
         let window_ratio = sorted(out.odometry.window_baseline_ratios.iter().copied());
         let window_ratio_pct = |p: f64| percentile_if_any(&window_ratio, p);
+        let present_moves = sorted(out.odometry.window_present_moves_m.iter().copied());
         let map_scale = sorted(
             out.odometry
                 .window_map_scale_corrections
@@ -567,6 +572,8 @@ impl ReplayReport {
             window_baseline_ratio_p10: window_ratio_pct(10.0),
             window_baseline_ratio_p50: window_ratio_pct(50.0),
             window_baseline_ratio_p90: window_ratio_pct(90.0),
+            window_present_move_m_p50: percentile_if_any(&present_moves, 50.0),
+            window_present_move_m_p90: percentile_if_any(&present_moves, 90.0),
             map_scale_corrections: map_scale.len(),
             map_scale_correction_p10: map_scale_pct(10.0),
             map_scale_correction_p50: map_scale_pct(50.0),

@@ -412,6 +412,16 @@ impl ReplayReport {
                         ", baseline solved/tracked p10/p50/p90 {p10:.3} / {p50:.3} / {p90:.3}"
                     );
                 }
+                if let (Some(p50), Some(p90)) = (
+                    self.window_present_move_m_p50,
+                    self.window_present_move_m_p90,
+                ) {
+                    text += &format!(
+                        ", the present moved p50/p90 {:.2} / {:.2} cm",
+                        p50 * 100.0,
+                        p90 * 100.0
+                    );
+                }
                 if let (Some(p10), Some(p50), Some(p90)) = (
                     self.map_scale_correction_p10,
                     self.map_scale_correction_p50,

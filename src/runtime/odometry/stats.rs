@@ -108,6 +108,12 @@ pub struct OdometryStats {
     /// IMU's scale reaches the maps, since the mapper's world is chained through it
     /// (`mapper_from_world`).
     pub window_baseline_ratios: Vec<f64>,
+    /// Each window solve's move of the present: the distance from the frame's position as
+    /// tracked to where the solve put it (the tracker's state is reset there), m. Beyond what the
+    /// vehicle moved, so a run without ground truth shows how far the window and tracking
+    /// disagree (S-V101's real IMU 1.9 cm median, its path with the simulator's IMU 0.4 cm;
+    /// docs/odometry-log.md, session 74).
+    pub window_present_moves_m: Vec<f64>,
     /// With `[window] map_scale`: after each window solve, the estimated log-scale λ of every
     /// keyframe map in the window, as (keyframe time, λ) (`OUT/window_scale.csv`).
     pub window_map_log_scales: Vec<(TimeNs, f64)>,
