@@ -109,9 +109,10 @@ pub struct OdometryStats {
     /// (`mapper_from_world`).
     pub window_baseline_ratios: Vec<f64>,
     /// Each window solve's move of the present: the distance from the frame's position as
-    /// tracked to where the solve put it (the tracker's state is reset there), m. Beyond what the
+    /// tracked to where the solve put it (the tracker's state is reset there), m; not across a
+    /// return to a stored keyframe, where the window also changes its world. Beyond what the
     /// vehicle moved, so a run without ground truth shows how far the window and tracking
-    /// disagree (S-V101's real IMU 1.9 cm median, its path with the simulator's IMU 0.4 cm;
+    /// disagree (S-V101's real IMU 1.9 cm median, its path with the simulator's IMU 0.5 cm;
     /// docs/odometry-log.md, session 74).
     pub window_present_moves_m: Vec<f64>,
     /// With `[window] map_scale`: after each window solve, the estimated log-scale λ of every

@@ -159,9 +159,12 @@ impl Odometry {
             return None;
         }
         let correction = pose_of(&x_new) * pose_of(&old).inverse();
-        self.stats
-            .window_present_moves_m
-            .push((x_new.nav.p_world_m - old.nav.p_world_m).norm());
+        if !across_return {
+            // (Across a return the move includes the window's change of world.)
+            self.stats
+                .window_present_moves_m
+                .push((x_new.nav.p_world_m - old.nav.p_world_m).norm());
+        }
         // The previous newest keyframe as solved.
         let xk = self.window.state(newest).copied();
         if self.cfg.window.map_scale {
