@@ -1508,3 +1508,97 @@ fn a_first_map_rebuilt_after_a_drifted_dead_reckoning_is_shaped_by_its_images() 
     assert_eq!(none, 0);
     assert!(shaped < 0.5 * dead_reckoned, "{shaped} vs {dead_reckoned}");
 }
+
+/// `[window] inflight_gyro_noise`: the gyro's rotation from keyframe to keyframe is read against
+/// the tracked one over the take-off's flight. The simulator's gyro, consistent with the rendered
+/// camera, reads near its modelled density; the same gyro with a bias wandering at ~1 Hz after
+/// the pad (0.01 rad/s, which the window's one bias per keyframe cannot follow) reads several
+/// times it, and the factor on the back end's IMU rotations follows the reading
+/// (`reading / imu_noise_scale` within 1 .. `inflight_gyro_noise_max_scale`) and reaches the
+/// estimate.
+#[test]
+fn the_gyro_noise_read_in_flight_weighs_the_back_ends_gyro_rotation() {
+    let dir = takeoff();
+    let ds = AslDataset::open(&dir).unwrap();
+    let t0 = ds.frames().unwrap().next().unwrap().unwrap().t;
+    let mut cfg = OdometryConfig::default();
+    cfg.window.inflight_gyro_noise = true;
+    // The take-off flies 3 s: a handful of keyframe intervals.
+    cfg.window.inflight_gyro_noise_min_intervals = 3;
+    let modelled = cfg.window.imu_noise_scale * cfg.window.imu_rotation_noise_factor;
+    let max_scale = cfg.window.inflight_gyro_noise_max_scale;
+    let wander = move |s: vidslam::imu::ImuSample| {
+        let t_s = s.t.secs_since(t0);
+        if t_s < 2.2 {
+            return s;
+        }
+        let tau = std::f64::consts::TAU;
+        let b = nalgebra::Vector3::new(
+            (tau * 0.9 * t_s).sin(),
+            (tau * 1.1 * t_s).cos(),
+            (tau * 0.7 * t_s + 1.0).sin(),
+        ) * 0.01;
+        vidslam::imu::ImuSample {
+            gyro_rad_s: s.gyro_rad_s + b,
+            ..s
+        }
+    };
+    let run = |cfg: OdometryConfig, wandering: bool| {
+        let mut poses = Vec::new();
+        let odo = drive::feed_imu_mapped(
+            &dir,
+            cfg,
+            |s| if wandering { wander(s) } else { s },
+            |_, _, _| None,
+            |_, r| {
+                assert!(r.result.state.is_finite());
+                poses.push(pose_of(&r.result.state));
+            },
+        );
+        let (stats, _) = odo.finish();
+        assert!(stats.tracking_since.is_some(), "never tracked");
+        (stats, poses)
+    };
+    let (quiet, _) = run(cfg.clone(), false);
+    let (wandering, poses_on) = run(cfg.clone(), true);
+    let mut off = cfg.clone();
+    off.window.inflight_gyro_noise = false;
+    let (unread, poses_off) = run(off, true);
+    let reading = |s: &vidslam::runtime::odometry::OdometryStats| {
+        assert!(
+            s.inflight_gyro_noise_intervals >= 3,
+            "{} intervals read",
+            s.inflight_gyro_noise_intervals
+        );
+        s.inflight_gyro_noise_ratio.expect("a median read")
+    };
+    let (q, w) = (reading(&quiet), reading(&wandering));
+    println!(
+        "gyro noise read in flight over the take-off: {q:.2}x modelled over {} intervals \
+         (consistent), {w:.2}x over {} (a 0.01 rad/s wander); factors applied {:?} / {:?}",
+        quiet.inflight_gyro_noise_intervals,
+        wandering.inflight_gyro_noise_intervals,
+        quiet.inflight_gyro_noise_scales,
+        wandering.inflight_gyro_noise_scales,
+    );
+    assert!(q / modelled < 2.0, "a consistent gyro read {q}");
+    assert!(w > 3.0 * q, "wandering {w} against consistent {q}");
+    for s in [&quiet, &wandering] {
+        for &(_, ratio, scale) in &s.inflight_gyro_noise_scales {
+            assert_eq!(scale, (ratio / modelled).clamp(1.0, max_scale));
+        }
+    }
+    let &(_, _, applied) = wandering
+        .inflight_gyro_noise_scales
+        .last()
+        .expect("the wander's factor applied");
+    let pad = wandering.rest_imu_density.unwrap().rotation_noise_scale;
+    assert!(applied > 1.2 * pad, "{applied} against the pad's {pad}");
+    assert_eq!(unread.inflight_gyro_noise_intervals, 0);
+    assert!(unread.inflight_gyro_noise_scales.is_empty());
+    assert_eq!(poses_on.len(), poses_off.len());
+    assert!(
+        poses_on.iter().zip(&poses_off).any(|(a, b)| a != b),
+        "the factor read in flight did not reach the estimate"
+    );
+}

@@ -54,6 +54,7 @@ impl ImuNoise {
 
 pub mod flight_scale;
 pub mod gyro_alignment;
+pub mod gyro_noise_reading;
 pub mod integration;
 pub mod misalignment;
 

@@ -180,6 +180,14 @@ pub struct ReplayReport {
     /// factors after the take-off (`[bootstrap] rest_gyro_rotation_noise`; 1 when off), on top
     /// of their `imu_rotation_noise_factor`.
     pub imu_rotation_noise_scale: Option<f64>,
+    /// `[window] inflight_gyro_noise`: keyframe intervals the gyro's noise was read over in
+    /// flight, its last median reading (the gyro's error against the tracked rotations over its
+    /// modelled density, 1 = as modelled; the camera's own error keeps a perfect gyro's reading
+    /// a little above 1), and the factor on the back end's IMU rotations at the end (in place of
+    /// `imu_rotation_noise_scale` once read; `None` when off).
+    pub inflight_gyro_noise_intervals: Option<usize>,
+    pub inflight_gyro_noise_ratio: Option<f64>,
+    pub inflight_gyro_rotation_noise_scale: Option<f64>,
     /// Re-initialisations after tracking loss.
     pub resets: u32,
     /// Of `resets`, losses of the image (a covered lens) that resumed tracking on the keyframe
@@ -544,6 +552,14 @@ impl ReplayReport {
             imu_gyro_noise_scale: rest.map(|d| d.gyro_scale),
             imu_accel_noise_scale: rest.map(|d| d.accel_scale),
             imu_rotation_noise_scale: rest.map(|d| d.rotation_noise_scale),
+            inflight_gyro_noise_intervals: (out.odometry.inflight_gyro_noise_intervals > 0)
+                .then_some(out.odometry.inflight_gyro_noise_intervals),
+            inflight_gyro_noise_ratio: out.odometry.inflight_gyro_noise_ratio,
+            inflight_gyro_rotation_noise_scale: out
+                .odometry
+                .inflight_gyro_noise_scales
+                .last()
+                .map(|&(_, _, f)| f),
             init_time_s: match (out.odometry.onset_t, out.odometry.tracking_since) {
                 (Some(a), Some(b)) => Some(b.secs_since(a)),
                 _ => None,

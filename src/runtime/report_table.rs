@@ -171,6 +171,18 @@ impl ReplayReport {
                 format!("{r:.2}× its setting"),
             );
         }
+        if let (Some(n), Some(r)) = (
+            self.inflight_gyro_noise_intervals,
+            self.inflight_gyro_noise_ratio,
+        ) {
+            let applied = self
+                .inflight_gyro_rotation_noise_scale
+                .map_or("none applied".to_string(), |f| format!("{f:.2}× applied"));
+            row(
+                "gyro noise in flight",
+                format!("{r:.2}× modelled over {n} keyframe intervals, {applied}"),
+            );
+        }
         if let Some(s) = self.init_time_s {
             row("init after onset", format!("{s:.2} s"));
         }

@@ -152,6 +152,23 @@ pub struct WindowConfig {
     /// built-in demo lost on 2 of 8 seeds; docs/odometry-log.md, *The keyframe window's
     /// headings held at the tracked ones*).
     pub hold_heading: bool,
+    /// The gyro's rotation weighed by its noise as read in flight: the rotation it integrates
+    /// from each keyframe to the next against the relative rotation tracking measured over it
+    /// ([`crate::imu::gyro_noise_reading`]); the median reading of the last
+    /// `inflight_gyro_noise_intervals` over `imu_noise_scale` (within 1 ..
+    /// `inflight_gyro_noise_max_scale`) replaces the pad's factor (`[bootstrap]
+    /// rest_gyro_rotation_noise`) on the rotation part of the window's, the keyframe
+    /// adjustment's and the loop closer's odometry IMU factors once
+    /// `inflight_gyro_noise_min_intervals` are read. The pad sees the gyro's vibration at rest
+    /// only; in flight a consistent gyro reads ~1 and a wandering one its wander. The window
+    /// itself does not read it: the odometry sets its scale ([`KeyframeWindow::set_imu_rotation_noise_scale`]).
+    pub inflight_gyro_noise: bool,
+    /// Keyframe intervals read before the reading replaces the pad's factor.
+    pub inflight_gyro_noise_min_intervals: usize,
+    /// Keyframe intervals the median is taken over (the newest).
+    pub inflight_gyro_noise_intervals: usize,
+    /// The factor read in flight is kept within 1 .. this.
+    pub inflight_gyro_noise_max_scale: f64,
 }
 
 impl Default for WindowConfig {
@@ -181,6 +198,10 @@ impl Default for WindowConfig {
             stored_map_scale_in_returns: false,
             keep_across_rebuild_max_s: 5.0,
             hold_heading: false,
+            inflight_gyro_noise: false,
+            inflight_gyro_noise_min_intervals: 10,
+            inflight_gyro_noise_intervals: 200,
+            inflight_gyro_noise_max_scale: 10.0,
         }
     }
 }

@@ -79,6 +79,7 @@ use crate::camera::{CameraModel, PixelRays, Vignette, correct_in_place};
 use crate::dataset::StampedPose;
 use crate::image::{Image, Pyramid};
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
+use crate::imu::gyro_noise_reading::GyroNoiseReading;
 use crate::imu::scale_alignment::AlignmentPrior;
 use crate::imu::static_init::{
     StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent, rest_covariance,
@@ -100,6 +101,7 @@ use std::sync::Arc;
 mod adjustment_log;
 mod bootstrap_config;
 mod gyro_link;
+mod gyro_noise_link;
 mod keyframe_returns;
 mod loop_link;
 mod loop_log;
@@ -432,6 +434,14 @@ pub struct Odometry {
     /// rescaled at the take-off to the ones measured on the pad (`[bootstrap]
     /// rest_imu_noise_factor`) over the tracker's `imu_noise_scale`, which multiplies them again.
     imu_noise: ImuNoise,
+    /// The factor on the rotation part of the keyframe window's, the keyframe adjustment's and
+    /// the loop closer's odometry IMU factors: 1, from the take-off the pad's
+    /// ([`RestImuDensity::rotation_noise_scale`]), with `[window] inflight_gyro_noise` the one
+    /// read in flight once it is read.
+    rotation_noise_scale: f64,
+    /// `[window] inflight_gyro_noise`: the gyro's rotation against the tracked one, per keyframe
+    /// interval.
+    gyro_noise: GyroNoiseReading,
 }
 
 impl Odometry {
@@ -577,6 +587,8 @@ impl Odometry {
             mapper_kf_pose: None,
             vignette_gain,
             imu_noise: rig.noise,
+            rotation_noise_scale: 1.0,
+            gyro_noise: GyroNoiseReading::new(cfg.window.inflight_gyro_noise_intervals),
             cfg,
             rig,
         }
@@ -1131,9 +1143,7 @@ impl Odometry {
             } else {
                 1.0
             };
-        self.window
-            .set_imu_rotation_noise_scale(rotation_noise_scale);
-        self.loop_odometry_noise_scale(rotation_noise_scale);
+        self.set_rotation_noise_scale(rotation_noise_scale);
         RestImuDensity {
             gyro_rad_s_sqrt_hz: e.gyro_density_rad_s_sqrt_hz,
             accel_m_s2_sqrt_hz: e.accel_density_m_s2_sqrt_hz,

@@ -130,11 +130,8 @@ impl Odometry {
             pyramid: s.keyframe_pyramid.clone(),
             imu,
             noise: self.imu_noise,
-            // The pad's measurement of the gyro (1 before it).
-            rotation_noise_scale: self
-                .stats
-                .rest_imu_density
-                .map_or(1.0, |d| d.rotation_noise_scale),
+            // The pad's measurement of the gyro (1 before it), or the one read in flight.
+            rotation_noise_scale: self.rotation_noise_scale,
             free_depths: tracked,
             start_velocity_std_m_s: reinit
                 .then_some(self.cfg.bootstrap.reinit_velocity_free_std_m_s),

@@ -115,6 +115,13 @@ pub struct OdometryStats {
     /// disagree (S-V101's real IMU 1.9 cm median, its path with the simulator's IMU 0.5 cm;
     /// docs/odometry-log.md, session 74).
     pub window_present_moves_m: Vec<f64>,
+    /// `[window] inflight_gyro_noise`: keyframe intervals the gyro's noise was read over, the
+    /// last median reading (the gyro's error over its modelled density: 1 = as modelled), and
+    /// each factor applied to the back end's IMU rotations from it, as (time, the median reading
+    /// it came from, factor).
+    pub inflight_gyro_noise_intervals: usize,
+    pub inflight_gyro_noise_ratio: Option<f64>,
+    pub inflight_gyro_noise_scales: Vec<(TimeNs, f64, f64)>,
     /// With `[window] map_scale`: after each window solve, the estimated log-scale λ of every
     /// keyframe map in the window, as (keyframe time, λ) (`OUT/window_scale.csv`).
     pub window_map_log_scales: Vec<(TimeNs, f64)>,

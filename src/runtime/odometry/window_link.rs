@@ -133,6 +133,10 @@ impl Odometry {
         let tracked_newest = visual.is_some() && !across_return;
         let x_prev = *self.window.newest()?.1;
         let pre = self.preintegrate_buffered(&x_prev, t);
+        if tracked_newest && let Some(v) = &visual {
+            let r_i_j = v.t_i_j.rotation.to_rotation_matrix().into_inner();
+            self.read_gyro_noise(&pre, &r_i_j, t);
+        }
         let old = result.state;
         self.window.push(id, old, pre, visual);
         self.correct_stored_map_scales();
