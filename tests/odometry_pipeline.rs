@@ -1510,7 +1510,8 @@ fn a_first_map_rebuilt_after_a_drifted_dead_reckoning_is_shaped_by_its_images() 
 }
 
 /// `[window] inflight_gyro_noise`: the gyro's rotation from keyframe to keyframe is read against
-/// the tracked one over the take-off's flight. The simulator's gyro, consistent with the rendered
+/// the tracked one (the photometric term's own, `inflight_gyro_noise_photometric`) over the
+/// take-off's flight. The simulator's gyro, consistent with the rendered
 /// camera, reads near its modelled density; the same gyro with a bias wandering at ~1 Hz after
 /// the pad (0.01 rad/s, which the window's one bias per keyframe cannot follow) reads several
 /// times it, and the factor on the back end's IMU rotations follows the reading
@@ -1594,6 +1595,16 @@ fn the_gyro_noise_read_in_flight_weighs_the_back_ends_gyro_rotation() {
         .expect("the wander's factor applied");
     let pad = wandering.rest_imu_density.unwrap().rotation_noise_scale;
     assert!(applied > 1.2 * pad, "{applied} against the pad's {pad}");
+    // Read against the joint solution's rotation (pulled toward the gyro by the tracker's IMU
+    // term) instead of the photometric term's own, the reading changes.
+    let mut joint = cfg.clone();
+    joint.window.inflight_gyro_noise_photometric = false;
+    let (joint, _) = run(joint, true);
+    assert_ne!(
+        reading(&joint),
+        w,
+        "the photometric rotation did not reach the reading"
+    );
     assert_eq!(unread.inflight_gyro_noise_intervals, 0);
     assert!(unread.inflight_gyro_noise_scales.is_empty());
     assert_eq!(poses_on.len(), poses_off.len());

@@ -163,6 +163,10 @@ pub struct WindowConfig {
     /// only; in flight a consistent gyro reads ~1 and a wandering one its wander. The window
     /// itself does not read it: the odometry sets its scale ([`KeyframeWindow::set_imu_rotation_noise_scale`]).
     pub inflight_gyro_noise: bool,
+    /// The tracked rotation the gyro is read against is the photometric term's own (the joint
+    /// solution moved by `TrackResult::photometric_step`), so the tracker's IMU term does not
+    /// pull it toward the gyro it is compared with (as `[gyro_alignment] photometric_pairs`).
+    pub inflight_gyro_noise_photometric: bool,
     /// Keyframe intervals read before the reading replaces the pad's factor.
     pub inflight_gyro_noise_min_intervals: usize,
     /// Keyframe intervals the median is taken over (the newest).
@@ -199,6 +203,7 @@ impl Default for WindowConfig {
             keep_across_rebuild_max_s: 5.0,
             hold_heading: false,
             inflight_gyro_noise: false,
+            inflight_gyro_noise_photometric: true,
             inflight_gyro_noise_min_intervals: 10,
             inflight_gyro_noise_intervals: 200,
             inflight_gyro_noise_max_scale: 10.0,
