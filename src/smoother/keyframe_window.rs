@@ -161,7 +161,12 @@ pub struct WindowConfig {
     /// adjustment's and the loop closer's odometry IMU factors once
     /// `inflight_gyro_noise_min_intervals` are read. The pad sees the gyro's vibration at rest
     /// only; in flight a consistent gyro reads ~1 and a wandering one its wander. The window
-    /// itself does not read it: the odometry sets its scale ([`KeyframeWindow::set_imu_rotation_noise_scale`]).
+    /// itself does not read it: the odometry sets its scale
+    /// ([`KeyframeWindow::set_imu_rotation_noise_scale`]). Off: on S-V101's path with the
+    /// simulator's IMU (the pad 4.8–4.95 ×, in flight 2.0–2.9 × the datasheet) seeds 1–3 go from
+    /// 3.85 / 5.43 / 5.71 to 2.36 / 3.49 / 4.84 cm, but on S-V101's real gyro (in flight 10–15 ×,
+    /// a factor of 3.6–4.7 against the pad's 5.86) seeds 1–10 from a mean of 0.101 to 0.113 m
+    /// (docs/odometry-log.md, *The gyro's noise read in flight*).
     pub inflight_gyro_noise: bool,
     /// The tracked rotation the gyro is read against is the photometric term's own (the joint
     /// solution moved by `TrackResult::photometric_step`), so the tracker's IMU term does not
