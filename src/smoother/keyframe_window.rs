@@ -155,8 +155,8 @@ pub struct WindowConfig {
     /// The gyro's rotation weighed by its noise as read in flight: the rotation it integrates
     /// from each keyframe to the next against the relative rotation tracking measured over it
     /// ([`crate::imu::gyro_noise_reading`]); the median reading of the last
-    /// `inflight_gyro_noise_intervals` over `imu_noise_scale` (within 1 ..
-    /// `inflight_gyro_noise_max_scale`) replaces the pad's factor (`[bootstrap]
+    /// `inflight_gyro_noise_intervals` over `imu_noise_scale × imu_rotation_noise_factor`
+    /// (within 1 .. `inflight_gyro_noise_max_scale`) replaces the pad's factor (`[bootstrap]
     /// rest_gyro_rotation_noise`) on the rotation part of the window's, the keyframe
     /// adjustment's and the loop closer's odometry IMU factors once
     /// `inflight_gyro_noise_min_intervals` are read. The pad sees the gyro's vibration at rest

@@ -6,8 +6,9 @@
 //! odometry edges) in place of the pad's.
 
 use super::*;
+use crate::geometry::exp_so3;
 use crate::imu::misalignment::turned;
-use nalgebra::Matrix3;
+use nalgebra::Vector6;
 
 /// A new factor is applied when it differs from the one applied by more than this fraction.
 const RESCALE_STEP: f64 = 0.05;
@@ -23,20 +24,28 @@ impl Odometry {
     }
 
     /// One keyframe interval: `pre` the buffered IMU from the window's newest keyframe to the
-    /// frame at `t` (at the window's bias), `r_i_j` the body's rotation between them as tracked
-    /// (`R_iᵀ R_j`). The gyro is turned by the window's estimate of its turn, as the window
-    /// applies it. Once `inflight_gyro_noise_min_intervals` are read, the median reading over the
-    /// window's `imu_noise_scale × imu_rotation_noise_factor` (within 1 ..
+    /// frame at `t` (at the window's bias), `t_i_j` the body's motion between them as tracked,
+    /// `photometric_step` the tracker's step from the joint solution to the photometric term's
+    /// own (`inflight_gyro_noise_photometric`: the rotation read against is moved by it). The
+    /// gyro is turned by the window's estimate of its turn, as the window applies it. Once
+    /// `inflight_gyro_noise_min_intervals` are read, the median reading over the window's
+    /// `imu_noise_scale × imu_rotation_noise_factor` (within 1 ..
     /// `inflight_gyro_noise_max_scale`) is the back end's factor.
     pub(super) fn read_gyro_noise(
         &mut self,
         pre: &Preintegration,
-        r_i_j: &Matrix3<f64>,
+        t_i_j: &Isometry3<f64>,
+        photometric_step: &Vector6<f64>,
         t: TimeNs,
     ) {
         let w = &self.cfg.window;
         if !w.inflight_gyro_noise {
             return;
+        }
+        let mut r_i_j = t_i_j.rotation.to_rotation_matrix().into_inner();
+        if w.inflight_gyro_noise_photometric {
+            // Where the keyframe's points alone turn the frame (`boxplus` turns on the right).
+            r_i_j *= exp_so3(&photometric_step.fixed_rows::<3>(0).into_owned());
         }
         let modelled = w.imu_noise_scale * w.imu_rotation_noise_factor;
         let (min_intervals, max_scale) = (
@@ -44,7 +53,7 @@ impl Odometry {
             w.inflight_gyro_noise_max_scale.max(1.0),
         );
         let pre = turned(pre, &self.window.gyro_misalignment_rad());
-        if self.gyro_noise.observe(&pre, r_i_j).is_none() {
+        if self.gyro_noise.observe(&pre, &r_i_j).is_none() {
             return;
         }
         self.stats.inflight_gyro_noise_intervals += 1;

@@ -5,7 +5,6 @@
 //! loss or a return to a stored keyframe.
 
 use super::*;
-use crate::geometry::exp_so3;
 
 impl Odometry {
     /// A first map is about to be started again in flight, at the tracker's (dead-reckoned)
@@ -135,12 +134,7 @@ impl Odometry {
         let x_prev = *self.window.newest()?.1;
         let pre = self.preintegrate_buffered(&x_prev, t);
         if tracked_newest && let Some(v) = &visual {
-            let mut r_i_j = v.t_i_j.rotation.to_rotation_matrix().into_inner();
-            if self.cfg.window.inflight_gyro_noise_photometric {
-                // Where the keyframe's points alone turn the frame (`boxplus` turns on the right).
-                r_i_j *= exp_so3(&result.photometric_step.fixed_rows::<3>(0).into_owned());
-            }
-            self.read_gyro_noise(&pre, &r_i_j, t);
+            self.read_gyro_noise(&pre, &v.t_i_j, &result.photometric_step, t);
         }
         let old = result.state;
         self.window.push(id, old, pre, visual);
