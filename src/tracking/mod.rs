@@ -11,4 +11,4 @@ pub mod tracker;
 pub use config::{NUM_LEVELS, TrackerConfig};
 pub use keyframe::{DepthPoint, Keyframe, depth_points_from_map, select_gradient_pixels};
 pub use schur::BlockSystem;
-pub use tracker::{FlagReason, TrackResult, Tracker, pose_of};
+pub use tracker::{FlagReason, TrackResult, Tracker, photometric_rotation, pose_of};

@@ -27,7 +27,7 @@ use super::photometric::{
 };
 use super::schur::BlockSystem;
 use crate::camera::CameraModel;
-use crate::geometry::adjoint;
+use crate::geometry::{adjoint, exp_so3};
 use crate::image::{Image, Pyramid, textured_fraction};
 use crate::imu::residual::block;
 use crate::imu::{
@@ -35,7 +35,7 @@ use crate::imu::{
     imu_residual_covariance,
 };
 use crate::time::TimeNs;
-use nalgebra::{Isometry3, Matrix6, SMatrix, SVector, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, SMatrix, SVector, Vector6};
 use std::time::Instant;
 
 /// Pyramid level whose texture decides whether a frame can be aligned (`min_textured_fraction`):
@@ -797,6 +797,17 @@ impl Tracker {
             r_imu: r,
         }
     }
+}
+
+/// `r_to_body`, any rotation whose right-hand frame is frame j's body (world ← body, or a
+/// keyframe's body ← body), turned as [`TrackResult::photometric_step`] turns frame j: where the
+/// keyframe's points alone put its attitude, the IMU's pull undone (`FrameState::boxplus` turns
+/// on the right).
+pub fn photometric_rotation(
+    r_to_body: &Matrix3<f64>,
+    photometric_step: &Vector6<f64>,
+) -> Matrix3<f64> {
+    r_to_body * exp_so3(&photometric_step.fixed_rows::<3>(0).into_owned())
 }
 
 /// Body pose `T_wb` of a state.

@@ -19,6 +19,7 @@ use crate::geometry::exp_so3;
 use crate::imu::gyro_alignment::{GyroAlignment, GyroAlignmentConfig, RotationPair};
 use crate::imu::{ImuBias, ImuSample, Preintegration};
 use crate::time::TimeNs;
+use crate::tracking::photometric_rotation;
 use nalgebra::{Matrix3, Vector3, Vector6};
 use std::collections::VecDeque;
 
@@ -140,7 +141,7 @@ impl Odometry {
             .matrix();
         if self.gyro.alignment.config().photometric_pairs {
             // The photometric term's own solution (`boxplus` turns on the right).
-            r_world_body *= exp_so3(&photometric_step.fixed_rows::<3>(0).into_owned());
+            r_world_body = photometric_rotation(&r_world_body, photometric_step);
         }
         let r_cam_body = self.rig.t_body_cam.rotation.inverse().to_rotation_matrix();
         let r_kf_body = (r_world_kf_cam * r_cam_body.matrix()).transpose() * r_world_body;

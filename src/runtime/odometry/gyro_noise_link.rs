@@ -6,8 +6,8 @@
 //! odometry edges) in place of the pad's.
 
 use super::*;
-use crate::geometry::exp_so3;
 use crate::imu::misalignment::turned;
+use crate::tracking::photometric_rotation;
 use nalgebra::Vector6;
 
 /// A new factor is applied when it differs from the one applied by more than this fraction.
@@ -45,7 +45,7 @@ impl Odometry {
         let mut r_i_j = t_i_j.rotation.to_rotation_matrix().into_inner();
         if w.inflight_gyro_noise_photometric {
             // Where the keyframe's points alone turn the frame (`boxplus` turns on the right).
-            r_i_j *= exp_so3(&photometric_step.fixed_rows::<3>(0).into_owned());
+            r_i_j = photometric_rotation(&r_i_j, photometric_step);
         }
         let modelled = w.imu_noise_scale * w.imu_rotation_noise_factor;
         let (min_intervals, max_scale) = (
