@@ -1106,4 +1106,39 @@ mod tests {
             );
         }
     }
+    /// The photometric attitude is the rotation `FrameState::boxplus` gives for the step, and it
+    /// turns a keyframe-relative rotation the same way (the keyframe's side is untouched).
+    #[test]
+    fn photometric_rotation_turns_as_boxplus_on_the_right() {
+        let r_world_body = UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -0.7, 1.1));
+        let state = FrameState {
+            nav: crate::imu::NavState {
+                t: TimeNs(0),
+                r_world_body,
+                p_world_m: Vector3::new(1.0, 2.0, 3.0),
+                v_world_m_s: Vector3::zeros(),
+            },
+            bias: crate::imu::ImuBias::default(),
+        };
+        let step = Vector6::new(0.02, -0.01, 0.03, 0.1, 0.2, -0.3);
+        let mut d = crate::imu::Vector15::zeros();
+        d.fixed_rows_mut::<3>(block::ROT)
+            .copy_from(&step.fixed_rows::<3>(0));
+        d.fixed_rows_mut::<3>(block::POS)
+            .copy_from(&step.fixed_rows::<3>(3));
+        let moved = state.boxplus(&d);
+        let r = *r_world_body.to_rotation_matrix().matrix();
+        let want = *moved.nav.r_world_body.to_rotation_matrix().matrix();
+        assert!((photometric_rotation(&r, &step) - want).norm() < 1e-12);
+        // Relative to a keyframe's body: R_kb' = R_kwᵀ R_wb'.
+        let r_world_kf = *UnitQuaternion::from_scaled_axis(Vector3::new(-0.2, 0.4, 0.1))
+            .to_rotation_matrix()
+            .matrix();
+        let rel = r_world_kf.transpose() * r;
+        let got = photometric_rotation(&rel, &step);
+        assert!((got - r_world_kf.transpose() * want).norm() < 1e-12);
+        // A zero step leaves the attitude as it is; a non-zero one moves it.
+        assert_eq!(photometric_rotation(&r, &Vector6::zeros()), r);
+        assert!((photometric_rotation(&r, &step) - r).norm() > 0.01);
+    }
 }
