@@ -1106,6 +1106,7 @@ mod tests {
             );
         }
     }
+
     /// The photometric attitude is the rotation `FrameState::boxplus` gives for the step, and it
     /// turns a keyframe-relative rotation the same way (the keyframe's side is untouched).
     #[test]

@@ -140,7 +140,7 @@ impl Odometry {
             .to_rotation_matrix()
             .matrix();
         if self.gyro.alignment.config().photometric_pairs {
-            // The photometric term's own solution (`boxplus` turns on the right).
+            // The photometric term's own solution.
             r_world_body = photometric_rotation(&r_world_body, photometric_step);
         }
         let r_cam_body = self.rig.t_body_cam.rotation.inverse().to_rotation_matrix();

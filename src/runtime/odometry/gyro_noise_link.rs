@@ -44,7 +44,7 @@ impl Odometry {
         }
         let mut r_i_j = t_i_j.rotation.to_rotation_matrix().into_inner();
         if w.inflight_gyro_noise_photometric {
-            // Where the keyframe's points alone turn the frame (`boxplus` turns on the right).
+            // Where the keyframe's points alone turn the frame.
             r_i_j = photometric_rotation(&r_i_j, photometric_step);
         }
         let modelled = w.imu_noise_scale * w.imu_rotation_noise_factor;
