@@ -744,3 +744,85 @@ fn a_window_that_holds_the_heading_leaves_it_to_the_relative_poses() {
         free.1
     );
 }
+
+/// The IMU's slow tilt against the camera of [`run_wandering_camera`], rad: ~5 mrad about the
+/// camera's x and z (across its y-down axis), at 0.2 and 0.13 Hz.
+fn camera_wander_rad(t_s: f64) -> Vector3<f64> {
+    use std::f64::consts::TAU;
+    Vector3::new(
+        0.005 * (TAU * 0.2 * t_s).sin(),
+        0.0,
+        0.004 * (TAU * 0.13 * t_s).cos(),
+    )
+}
+
+/// 25 s of the figure-eights (100 keyframes, guesses chained as the tracker gives them) seen by
+/// a camera whose attitude wanders against the IMU's, `R_imu = R_cam Exp(e(t))` (the flight's
+/// own noise-free IMU, the relative poses of the wandering camera at face value, the rotations
+/// at 0.1 mrad), with
+/// `[window] mount_rotation` on or off. Returns, over the last 40 solves of the newest
+/// keyframe: the worst velocity error (m/s), the worst position error (m), and the RMS of the
+/// window's ψ against the wander in the middle of the window (rad).
+fn run_wandering_camera(mount_rotation: bool) -> (f64, f64, f64) {
+    let sp = flight();
+    let cfg = WindowConfig {
+        mount_rotation,
+        imu_noise_scale: 1.0,
+        ..window_config(12)
+    };
+    let mut w = window_with(cfg);
+    let t0 = sp.start().add_ns(5_000_000_000);
+    let camera = |t: vidslam::time::TimeNs| {
+        let mut x = truth(&sp, t);
+        let e = camera_wander_rad(t.secs_since(t0));
+        x.nav.r_world_body *= UnitQuaternion::from_scaled_axis(-e);
+        x
+    };
+    let x0 = camera(t0);
+    w.reset(0, x0, &prior_cov());
+    let (mut prev_cam, mut prev_est) = (x0, x0);
+    let (mut worst_v, mut worst_p, mut psi_sq, mut psi_n) = (0.0f64, 0.0f64, 0.0, 0);
+    for k in 1..=100u32 {
+        let t = t0.add_ns(k as i64 * KF_PERIOD_NS);
+        let (xt, xc) = (truth(&sp, t), camera(t));
+        let pre = preintegrate(&sp, &prev_est, t);
+        // Exact relative rotations weighed at 0.1 mrad: the gyro's and the camera's turns then
+        // tell ψ's steps (at `relative`'s 1 mrad they are as uncertain as the wander's steps).
+        let mut z = relative(&prev_cam, &xc);
+        for a in 0..3 {
+            z.information[(a, a)] = 1e8;
+        }
+        prev_est = push_chained(&mut w, k, &prev_est, t, pre, z);
+        prev_cam = xc;
+        if k > 60 {
+            worst_v = worst_v.max((prev_est.nav.v_world_m_s - xt.nav.v_world_m_s).norm());
+            worst_p = worst_p.max((prev_est.nav.p_world_m - xt.nav.p_world_m).norm());
+            // ψ of the keyframe in the middle of the window (the newest's is a prediction with
+            // one IMU factor behind it).
+            let (km, tm) = (k - 6, t.add_ns(-6 * KF_PERIOD_NS));
+            let psi = w.mount_rotation_rad(km).unwrap();
+            psi_sq += (psi - camera_wander_rad(tm.secs_since(t0))).norm_squared();
+            psi_n += 1;
+        }
+    }
+    (worst_v, worst_p, (psi_sq / psi_n as f64).sqrt())
+}
+
+#[test]
+fn a_camera_that_wanders_against_the_imu_is_read_by_the_mount_rotation() {
+    let (v_off, p_off, psi_off) = run_wandering_camera(false);
+    let (v_on, p_on, psi_on) = run_wandering_camera(true);
+    println!(
+        "held: {v_off:.4} m/s, {p_off:.4} m; read: {v_on:.4} m/s, {p_on:.4} m, ψ RMS {psi_on:.5} rad"
+    );
+    // Without the unknown ψ stays at zero (its RMS is the wander's) and the camera's tilt turns
+    // gravity into velocity.
+    assert!(
+        v_on < 0.5 * v_off && p_on < 0.5 * p_off,
+        "velocity {v_on} (held {v_off}) m/s, position {p_on} (held {p_off}) m"
+    );
+    assert!(
+        psi_on < 0.3 * psi_off,
+        "ψ RMS {psi_on} against {psi_off} rad"
+    );
+}

@@ -293,6 +293,15 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         }
         std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
     }
+    if !out.odometry.window_mount_rotation_history.is_empty() {
+        let p = a.out.join("window_mount_rotation.csv");
+        let mut csv = String::from("t_ns,x_mrad,y_mrad,z_mrad\n");
+        for (t, psi) in &out.odometry.window_mount_rotation_history {
+            let m = psi * 1e3;
+            csv.push_str(&format!("{},{:.3},{:.3},{:.3}\n", t.0, m.x, m.y, m.z));
+        }
+        std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
+    }
     let csv_path = a.out.join("frames.csv");
     std::fs::write(&csv_path, frames_csv(&out))
         .with_context(|| format!("writing {}", csv_path.display()))?;

@@ -57,6 +57,7 @@ pub mod gyro_alignment;
 pub mod gyro_noise_reading;
 pub mod integration;
 pub mod misalignment;
+pub mod mount_rotation;
 
 pub use integration::{ImuBias, NavState, Preintegration, propagate};
 pub mod residual;

@@ -32,6 +32,7 @@ use super::relative_pose::RelativePose;
 use crate::geometry::log_so3;
 use crate::imu::imu_jacobian_j;
 use crate::imu::misalignment::{d_residual_d_misalignment, turned};
+use crate::imu::mount_rotation::{imu_jacobians_mounted, mounted};
 use crate::imu::{
     FrameState, ImuNoise, Matrix15, Preintegration, Vector15, imu_residual,
     imu_residual_covariance, residual::imu_jacobian_i,
@@ -152,6 +153,20 @@ pub struct WindowConfig {
     /// built-in demo lost on 2 of 8 seeds; docs/odometry-log.md, *The keyframe window's
     /// headings held at the tracked ones*).
     pub hold_heading: bool,
+    /// The IMU frame's attitude against the camera's body frame as a slowly varying unknown per
+    /// keyframe, `R_imu = R_body Exp(ψ_k)` ([`crate::imu::mount_rotation`]): the IMU factors
+    /// hold between the IMU frames, the relative poses between the camera's, and ψ follows a
+    /// first-order Gauss–Markov process (stationary `mount_rotation_std_rad` per axis, time
+    /// constant `mount_rotation_time_constant_s`) from keyframe to keyframe. A soft camera mount,
+    /// or an IMU reference that wanders against the camera (S-V101's truth: ~5 mrad of tilt at
+    /// 0.1–1 Hz, docs/odometry-log.md, *The real accelerometer against the truth, read both
+    /// ways*), otherwise turns the accelerometer's gravity against the camera's attitude.
+    pub mount_rotation: bool,
+    /// Stationary standard deviation of ψ per axis, rad (also its prior at a window restart).
+    pub mount_rotation_std_rad: f64,
+    /// Correlation time of ψ, s: consecutive keyframes `Δt` apart are tied by `ψ_j = a ψ_i + w`,
+    /// `a = e^{−Δt/τ}`, `w ~ N(0, σ²(1 − a²))`.
+    pub mount_rotation_time_constant_s: f64,
     /// The gyro's rotation weighed by its noise as read in flight: the rotation it integrates
     /// from each keyframe to the next against the relative rotation tracking measured over it
     /// ([`crate::imu::gyro_noise_reading`]); the median reading of the last
@@ -207,6 +222,9 @@ impl Default for WindowConfig {
             stored_map_scale_in_returns: false,
             keep_across_rebuild_max_s: 5.0,
             hold_heading: false,
+            mount_rotation: false,
+            mount_rotation_std_rad: 0.005,
+            mount_rotation_time_constant_s: 2.0,
             inflight_gyro_noise: false,
             inflight_gyro_noise_photometric: true,
             inflight_gyro_noise_min_intervals: 10,
@@ -223,6 +241,8 @@ struct Node {
     state: FrameState,
     /// Log-scale λ of this keyframe's map (0 unless `map_scale`).
     log_scale: f64,
+    /// The IMU frame's turn against the body frame, ψ, rad (0 unless `mount_rotation`).
+    mount_rad: Vector3<f64>,
     /// The correction applied to the predecessor's map when this keyframe was started: this
     /// map's λ is expected at the predecessor's minus it.
     scale_correction: f64,
@@ -241,14 +261,15 @@ struct Node {
 }
 
 /// Gaussian prior on the first `lin.len()` nodes: `E(δ) = ½ δᵀ H δ − gᵀ δ`, `δ = x ⊟ lin` (per
-/// node its 15 state rows, then with `map_scale` its λ), then with `gyro_misalignment` φ's 3
-/// rows.
+/// node its 15 state rows, then with `map_scale` its λ, then with `mount_rotation` its ψ), then
+/// with `gyro_misalignment` φ's 3 rows.
 #[derive(Clone, Debug)]
 struct Prior {
     h: DMatrix<f64>,
     g: DVector<f64>,
     lin: Vec<FrameState>,
     lin_log_scale: Vec<f64>,
+    lin_mount: Vec<Vector3<f64>>,
     lin_phi: Vector3<f64>,
 }
 
@@ -257,6 +278,8 @@ struct Prior {
 struct Unknowns {
     states: Vec<FrameState>,
     log_scales: Vec<f64>,
+    /// Each node's ψ, rad (zero without `mount_rotation`).
+    mounts: Vec<Vector3<f64>>,
     /// The gyro's turn φ, rad (zero without `gyro_misalignment`).
     phi: Vector3<f64>,
 }
@@ -364,9 +387,38 @@ impl KeyframeWindow {
         self.nodes.is_empty()
     }
 
-    /// Unknowns per node: the 15 of the state, and λ with `map_scale`.
+    /// Unknowns per node: the 15 of the state, λ with `map_scale`, ψ's 3 with `mount_rotation`.
     fn block(&self) -> usize {
+        self.mount_row() + if self.cfg.mount_rotation { 3 } else { 0 }
+    }
+
+    /// ψ's first row within a node's block (with `mount_rotation`).
+    fn mount_row(&self) -> usize {
         if self.cfg.map_scale { 16 } else { 15 }
+    }
+
+    /// Information of ψ's prior at a window restart.
+    fn mount_prior_information(&self) -> f64 {
+        self.cfg.mount_rotation_std_rad.max(1e-6).powi(-2)
+    }
+
+    /// The Gauss–Markov step of ψ over `dt_s`: the factor `a` and the step's information.
+    fn mount_step(&self, dt_s: f64) -> (f64, f64) {
+        let a = (-dt_s.max(0.0) / self.cfg.mount_rotation_time_constant_s.max(1e-6)).exp();
+        let var = self.cfg.mount_rotation_std_rad.max(1e-6).powi(2) * (1.0 - a * a).max(1e-6);
+        (a, 1.0 / var)
+    }
+
+    /// Time and ψ (rad) of the keyframes in the window, oldest first (zero without
+    /// `mount_rotation`).
+    pub fn mount_rotations(&self) -> impl Iterator<Item = (TimeNs, Vector3<f64>)> + '_ {
+        self.nodes.iter().map(|n| (n.state.nav.t, n.mount_rad))
+    }
+
+    /// The IMU frame's turn ψ of keyframe `id` against its body frame, rad (zero without
+    /// `mount_rotation`), if it is in the window.
+    pub fn mount_rotation_rad(&self, id: u32) -> Option<Vector3<f64>> {
+        self.nodes.iter().find(|n| n.id == id).map(|n| n.mount_rad)
     }
 
     /// Restarts the window at keyframe `id` with state `x` and covariance `cov` (bootstrap, or a
@@ -381,8 +433,14 @@ impl KeyframeWindow {
         let (b, e) = (self.block(), self.extra());
         let mut hp = DMatrix::zeros(b + e, b + e);
         hp.view_mut((0, 0), (15, 15)).copy_from(&h);
-        if b == 16 {
+        if self.cfg.map_scale {
             hp[(15, 15)] = self.cfg.map_scale_initial_std.max(1e-6).powi(-2);
+        }
+        if self.cfg.mount_rotation {
+            let m = self.mount_row();
+            for k in m..m + 3 {
+                hp[(k, k)] = self.mount_prior_information();
+            }
         }
         if e == 3 {
             let fresh = self.phi_prior_h(&x);
@@ -400,12 +458,14 @@ impl KeyframeWindow {
             g: DVector::zeros(b + e),
             lin: vec![x],
             lin_log_scale: vec![0.0],
+            lin_mount: vec![Vector3::zeros()],
             lin_phi: self.phi,
         });
         self.nodes.push_back(Node {
             id,
             state: x,
             log_scale: 0.0,
+            mount_rad: Vector3::zeros(),
             scale_correction: 0.0,
             visual_on_own_map: false,
             new_map: false,
@@ -514,9 +574,15 @@ impl KeyframeWindow {
         imu: Preintegration,
         visual: Option<RelativePose>,
     ) {
-        let Some(log_scale) = self.nodes.back().map(|n| n.log_scale) else {
+        let Some((log_scale, mount_rad, t_prev)) = self
+            .nodes
+            .back()
+            .map(|n| (n.log_scale, n.mount_rad, n.state.nav.t))
+        else {
             return;
         };
+        // ψ starts at the Gauss–Markov process's prediction.
+        let mount_rad = mount_rad * self.mount_step(x.nav.t.secs_since(t_prev)).0;
         while self.nodes.len() >= self.cfg.max_keyframes.max(2) {
             self.marginalise_oldest();
         }
@@ -524,6 +590,7 @@ impl KeyframeWindow {
             id,
             state: x,
             log_scale,
+            mount_rad,
             scale_correction: 0.0,
             visual_on_own_map: false,
             new_map: false,
@@ -550,6 +617,7 @@ impl KeyframeWindow {
         Unknowns {
             states: self.nodes.iter().map(|n| n.state).collect(),
             log_scales: self.nodes.iter().map(|n| n.log_scale).collect(),
+            mounts: self.nodes.iter().map(|n| n.mount_rad).collect(),
             phi: self.phi,
         }
     }
@@ -600,7 +668,24 @@ impl KeyframeWindow {
                     })
                     .collect(),
                 log_scales: (0..n)
-                    .map(|k| x.log_scales[k] + if b == 16 { dx[b * k + 15] } else { 0.0 })
+                    .map(|k| {
+                        x.log_scales[k]
+                            + if self.cfg.map_scale {
+                                dx[b * k + 15]
+                            } else {
+                                0.0
+                            }
+                    })
+                    .collect(),
+                mounts: (0..n)
+                    .map(|k| {
+                        if self.cfg.mount_rotation {
+                            let m = b * k + self.mount_row();
+                            x.mounts[k] + Vector3::new(dx[m], dx[m + 1], dx[m + 2])
+                        } else {
+                            x.mounts[k]
+                        }
+                    })
                     .collect(),
                 phi: if self.extra() == 3 {
                     x.phi + Vector3::new(dx[b * n], dx[b * n + 1], dx[b * n + 2])
@@ -628,9 +713,16 @@ impl KeyframeWindow {
             }
         }
         summary.cost_after = cost;
-        for ((node, s), l) in self.nodes.iter_mut().zip(x.states).zip(x.log_scales) {
+        for (((node, s), l), m) in self
+            .nodes
+            .iter_mut()
+            .zip(x.states)
+            .zip(x.log_scales)
+            .zip(x.mounts)
+        {
             node.state = s;
             node.log_scale = l;
+            node.mount_rad = m;
         }
         self.phi = x.phi;
         summary
@@ -660,8 +752,12 @@ impl KeyframeWindow {
             let mut d = DVector::zeros(b * m + e);
             for (k, (xk, lin)) in states.iter().zip(&p.lin).take(m).enumerate() {
                 d.rows_mut(b * k, 15).copy_from(&boxminus(xk, lin));
-                if b == 16 {
+                if self.cfg.map_scale {
                     d[b * k + 15] = x.log_scales[k] - p.lin_log_scale[k];
+                }
+                if self.cfg.mount_rotation {
+                    d.rows_mut(b * k + self.mount_row(), 3)
+                        .copy_from(&(x.mounts[k] - p.lin_mount[k]));
                 }
             }
             if e == 3 {
@@ -696,6 +792,13 @@ impl KeyframeWindow {
                 pre_w.scale_rotation_noise(
                     self.cfg.imu_rotation_noise_factor * self.rotation_noise_scale,
                 );
+                // With `mount_rotation` the factor holds between the IMU frames R Exp(ψ).
+                let (xi_m, xj_m) = if self.cfg.mount_rotation {
+                    (mounted(xi, &x.mounts[i]), mounted(xj, &x.mounts[j]))
+                } else {
+                    (*xi, *xj)
+                };
+                let (xi, xj) = (&xi_m, &xj_m);
                 let mut cov =
                     imu_residual_covariance(&pre_w, &self.noise, xi, xj, &Matrix15::zeros());
                 for k in 0..15 {
@@ -705,23 +808,69 @@ impl KeyframeWindow {
                     .cholesky()
                     .map(|c| c.inverse())
                     .unwrap_or_else(|| Matrix15::identity() * 1e12);
-                let r = imu_residual(pre, xi, xj);
-                let ji = imu_jacobian_i(pre, xi, xj);
-                let jj = imu_jacobian_j(pre, xi, xj);
-                cost += 0.5 * r.dot(&(w * r));
-                add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
-                if e == 3 {
-                    let jf = d_residual_d_misalignment(pre0, &x.phi, &r, xi, xj);
-                    add_shared(
-                        &mut h,
-                        &mut rhs,
-                        [b * i, b * j],
-                        of,
-                        [&ji, &jj],
-                        &jf,
-                        &w,
-                        &r,
+                if self.cfg.mount_rotation {
+                    let m = imu_jacobians_mounted(
+                        pre,
+                        &states[i],
+                        &states[j],
+                        &x.mounts[i],
+                        &x.mounts[j],
                     );
+                    cost += 0.5 * m.r.dot(&(w * m.r));
+                    let mo = self.mount_row();
+                    let mut blocks: Vec<(usize, DMatrix<f64>)> = vec![
+                        (b * i, DMatrix::from_column_slice(15, 15, m.ji.as_slice())),
+                        (b * j, DMatrix::from_column_slice(15, 15, m.jj.as_slice())),
+                        (
+                            b * i + mo,
+                            DMatrix::from_column_slice(15, 3, m.jpsi_i.as_slice()),
+                        ),
+                        (
+                            b * j + mo,
+                            DMatrix::from_column_slice(15, 3, m.jpsi_j.as_slice()),
+                        ),
+                    ];
+                    if e == 3 {
+                        let jf = d_residual_d_misalignment(pre0, &x.phi, &m.r, xi, xj);
+                        blocks.push((of, DMatrix::from_column_slice(15, 3, jf.as_slice())));
+                    }
+                    add_blocks(&mut h, &mut rhs, &blocks, &w, &m.r);
+                } else {
+                    let r = imu_residual(pre, xi, xj);
+                    let ji = imu_jacobian_i(pre, xi, xj);
+                    let jj = imu_jacobian_j(pre, xi, xj);
+                    cost += 0.5 * r.dot(&(w * r));
+                    add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
+                    if e == 3 {
+                        let jf = d_residual_d_misalignment(pre0, &x.phi, &r, xi, xj);
+                        add_shared(
+                            &mut h,
+                            &mut rhs,
+                            [b * i, b * j],
+                            of,
+                            [&ji, &jj],
+                            &jf,
+                            &w,
+                            &r,
+                        );
+                    }
+                }
+            }
+            if self.cfg.mount_rotation {
+                // ψ's Gauss–Markov step from keyframe i to j.
+                let dt_s = xj.nav.t.secs_since(xi.nav.t);
+                let (a, wm) = self.mount_step(dt_s);
+                let mo = self.mount_row();
+                let r = x.mounts[j] - x.mounts[i] * a;
+                cost += 0.5 * wm * r.norm_squared();
+                let (pi, pj) = (b * i + mo, b * j + mo);
+                for k in 0..3 {
+                    h[(pi + k, pi + k)] += wm * a * a;
+                    h[(pj + k, pj + k)] += wm;
+                    h[(pi + k, pj + k)] -= wm * a;
+                    h[(pj + k, pi + k)] -= wm * a;
+                    rhs[pi + k] += wm * a * r[k];
+                    rhs[pj + k] -= wm * r[k];
                 }
             }
             if let Some(vis) = &node.visual {
@@ -743,7 +892,7 @@ impl KeyframeWindow {
                     cost += 0.5 * s;
                 }
                 add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
-                if b == 16 {
+                if self.cfg.map_scale {
                     // λ's column of the same factor.
                     let (oi, oj, ol) = (b * i, b * j, b * k_map + 15);
                     let wl = w * jl;
@@ -759,7 +908,7 @@ impl KeyframeWindow {
                     rhs[ol] -= wl.dot(&r);
                 }
             }
-            if b == 16 {
+            if self.cfg.map_scale {
                 // The random walk of the map's scale from keyframe i to j.
                 let std = if node.new_map {
                     self.cfg.map_scale_rebuilt_std
@@ -825,6 +974,7 @@ impl KeyframeWindow {
                 g: DVector::zeros(3),
                 lin: Vec::new(),
                 lin_log_scale: Vec::new(),
+                lin_mount: Vec::new(),
                 lin_phi: x.phi,
             });
             return;
@@ -837,6 +987,7 @@ impl KeyframeWindow {
             g: gp,
             lin: x.states[1..].to_vec(),
             lin_log_scale: x.log_scales[1..].to_vec(),
+            lin_mount: x.mounts[1..].to_vec(),
             lin_phi: x.phi,
         });
     }
@@ -922,6 +1073,27 @@ fn schur_complement(
     hp = (&hp + hp.transpose()) * 0.5;
     let gp = rhs.rows(m, r) - hmr.transpose() * chol.solve(&rhs.rows(0, m).into_owned());
     Some((hp, gp))
+}
+
+/// Adds a factor whose Jacobian is split into column blocks at the given offsets of the system
+/// (`JᵀWJ` block by block, `−JᵀWr`).
+fn add_blocks(
+    h: &mut DMatrix<f64>,
+    rhs: &mut DVector<f64>,
+    blocks: &[(usize, DMatrix<f64>)],
+    w: &Matrix15,
+    r: &Vector15,
+) {
+    let wr = w * r;
+    for (oa, ja) in blocks {
+        let wja = DMatrix::from_column_slice(15, 15, w.as_slice()) * ja;
+        for (ob, jb) in blocks {
+            h.view_mut((*ob, *oa), (jb.ncols(), ja.ncols()))
+                .add_assign(&(jb.transpose() * &wja));
+        }
+        let g = ja.transpose() * DVector::from_column_slice(wr.as_slice());
+        rhs.rows_mut(*oa, ja.ncols()).add_assign(&(-g));
+    }
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -34,6 +34,10 @@ pub struct OdometryStats {
     /// ω_gyro`) after every window solve, as (newest keyframe's time, φ in rad)
     /// (`OUT/window_gyro_turn.csv`): how the estimate settles over a flight.
     pub window_gyro_misalignment_history: Vec<(TimeNs, Vector3<f64>)>,
+    /// `[window] mount_rotation`: the IMU frame's turn ψ against the body frame of the oldest
+    /// keyframe in the window (the best-read one) after every window solve, as (that keyframe's
+    /// time, ψ in rad) (`OUT/window_mount_rotation.csv`).
+    pub window_mount_rotation_history: Vec<(TimeNs, Vector3<f64>)>,
     pub keyframes: usize,
     /// Times the tracker returned to a stored keyframe instead of starting a new one.
     pub keyframe_reuses: usize,

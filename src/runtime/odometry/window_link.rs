@@ -149,6 +149,13 @@ impl Odometry {
             let phi = self.window.gyro_misalignment_rad();
             self.stats.window_gyro_misalignment_history.push((t, phi));
         }
+        if self.cfg.window.mount_rotation
+            && let Some((t_oldest, psi)) = self.window.mount_rotations().next()
+        {
+            self.stats
+                .window_mount_rotation_history
+                .push((t_oldest, psi));
+        }
         self.stats.window_solve_s.push(solve_s);
         self.times.window_s += solve_s;
         // The frame's tracking-thread time includes the window it triggered.
