@@ -24,8 +24,14 @@
 //! keyframes onto its own axes, and the tilt that follows takes the accelerometer's gravity into
 //! the velocity. φ is kept through marginalisation (it is never marginalised) and restarts.
 //!
+//! With `mount_rotation` each keyframe also carries the IMU frame's turn against its body (the
+//! camera's) frame, `R_imu = R_body Exp(ψ)` ([`crate::imu::mount_rotation`]): the IMU factors hold
+//! between the IMU frames, the relative poses between the body frames, and ψ is a Gauss–Markov
+//! process from keyframe to keyframe.
+//!
 //! State increment per keyframe in the order of eq. 11, `[δθ, δt, δv, δbω, δba]`, then λ with
-//! `map_scale`; after all keyframes, φ's 3 rows with `gyro_misalignment`.
+//! `map_scale`, then ψ's 3 rows with `mount_rotation`; after all keyframes, φ's 3 rows with
+//! `gyro_misalignment`.
 
 use super::envelope_cholesky::EnvelopeCholesky;
 use super::relative_pose::RelativePose;
@@ -1084,14 +1090,15 @@ fn add_blocks(
     w: &Matrix15,
     r: &Vector15,
 ) {
-    let wr = w * r;
+    let wr = DVector::from_column_slice((w * r).as_slice());
+    let w = DMatrix::from_column_slice(15, 15, w.as_slice());
     for (oa, ja) in blocks {
-        let wja = DMatrix::from_column_slice(15, 15, w.as_slice()) * ja;
+        let wja = &w * ja;
         for (ob, jb) in blocks {
             h.view_mut((*ob, *oa), (jb.ncols(), ja.ncols()))
                 .add_assign(&(jb.transpose() * &wja));
         }
-        let g = ja.transpose() * DVector::from_column_slice(wr.as_slice());
+        let g = ja.transpose() * &wr;
         rhs.rows_mut(*oa, ja.ncols()).add_assign(&(-g));
     }
 }
