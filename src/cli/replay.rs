@@ -284,23 +284,29 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         }
         std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
     }
-    if !out.odometry.window_gyro_misalignment_history.is_empty() {
-        let p = a.out.join("window_gyro_turn.csv");
-        let mut csv = String::from("t_ns,x_deg,y_deg,z_deg\n");
-        for (t, phi) in &out.odometry.window_gyro_misalignment_history {
-            let d = phi.map(f64::to_degrees);
-            csv.push_str(&format!("{},{:.4},{:.4},{:.4}\n", t.0, d.x, d.y, d.z));
+    // Rotation vectors per solve, in degrees (the gyro's turn) and milliradians (the mount's).
+    let rotation_histories = [
+        (
+            "window_gyro_turn.csv",
+            &out.odometry.window_gyro_misalignment_history,
+            "deg",
+            180.0 / std::f64::consts::PI,
+            4,
+        ),
+        (
+            "window_mount_rotation.csv",
+            &out.odometry.window_mount_rotation_history,
+            "mrad",
+            1e3,
+            3,
+        ),
+    ];
+    for (name, rows, unit, per_rad, decimals) in rotation_histories {
+        if !rows.is_empty() {
+            let p = a.out.join(name);
+            std::fs::write(&p, rotation_history_csv(rows, unit, per_rad, decimals))
+                .with_context(|| format!("writing {}", p.display()))?;
         }
-        std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
-    }
-    if !out.odometry.window_mount_rotation_history.is_empty() {
-        let p = a.out.join("window_mount_rotation.csv");
-        let mut csv = String::from("t_ns,x_mrad,y_mrad,z_mrad\n");
-        for (t, psi) in &out.odometry.window_mount_rotation_history {
-            let m = psi * 1e3;
-            csv.push_str(&format!("{},{:.3},{:.3},{:.3}\n", t.0, m.x, m.y, m.z));
-        }
-        std::fs::write(&p, csv).with_context(|| format!("writing {}", p.display()))?;
     }
     let csv_path = a.out.join("frames.csv");
     std::fs::write(&csv_path, frames_csv(&out))
@@ -355,6 +361,25 @@ impl FcOutput {
     fn finish(self) -> anyhow::Result<()> {
         finish_sender(self.sender, "mavlink", &self.to, self.origin.is_some())
     }
+}
+
+/// `t_ns,x_<unit>,y_<unit>,z_<unit>` rows of rotation vectors (rad) times `per_rad`, `decimals`
+/// places.
+fn rotation_history_csv(
+    rows: &[(TimeNs, nalgebra::Vector3<f64>)],
+    unit: &str,
+    per_rad: f64,
+    decimals: usize,
+) -> String {
+    let mut csv = format!("t_ns,x_{unit},y_{unit},z_{unit}\n");
+    for (t, v) in rows {
+        let v = v * per_rad;
+        csv.push_str(&format!(
+            "{},{:.*},{:.*},{:.*}\n",
+            t.0, decimals, v.x, decimals, v.y, decimals, v.z
+        ));
+    }
+    csv
 }
 
 fn depth_name(d: DepthArg) -> &'static str {
