@@ -152,3 +152,101 @@ fn maps_made_too_large_are_scaled_back_in_their_stored_copies_as_they_leave_the_
     assert!(after > 0.03, "{after}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Per frame (time since the fault, s — negative before it; the velocity's divergence from the
+/// IMU's dead reckoning, m/s; a keyframe asked for at the frame), and the odometry's statistics,
+/// for the accelerometer reading `step_m_s2` more along the body's x axis from 6 s after the
+/// first frame on (0 = no fault).
+fn divergences_with_accel_step(
+    dir: &std::path::Path,
+    cfg: OdometryConfig,
+    step_m_s2: f64,
+) -> (Vec<(f64, f64, bool)>, OdometryStats) {
+    let ds = AslDataset::open(dir).unwrap();
+    let first = ds.frames().unwrap().next().unwrap().unwrap().t;
+    let t_fault = first.add_ns(6_000_000_000);
+    let mut frames = Vec::new();
+    let odo = drive::feed_imu_mapped(
+        dir,
+        cfg,
+        |mut s| {
+            if s.t >= t_fault {
+                s.accel_m_s2.x += step_m_s2;
+            }
+            s
+        },
+        |_, _, _| None,
+        |_, r| {
+            assert!(r.result.state.is_finite());
+            if let Some(d) = r.result.imu_velocity_divergence_m_s {
+                frames.push((r.result.t.secs_since(t_fault), d, r.result.wants_keyframe));
+            }
+        },
+    );
+    let (stats, _) = odo.finish();
+    assert_eq!(stats.resets, 0);
+    (frames, stats)
+}
+
+/// `[tracking] keyframe_max_velocity_divergence_m_s`: the frame's velocity against the IMU's
+/// dead reckoning from the keyframe window's newest keyframe. An accelerometer that reads
+/// 0.5 m/s² more from 6 s on (a bias jump: the images still say where the camera is) takes the
+/// dead reckoning off the tracked velocity — far beyond anything the flight shows before — and a
+/// limit between the two starts keyframes only after the fault, at frames beyond it, and more of
+/// them without the rule's wait after a keyframe.
+#[test]
+fn an_accelerometer_off_the_images_is_read_and_the_divergence_limit_starts_keyframes() {
+    let dir = first_figure_eight();
+    let max_m_s = |f: &[(f64, f64, bool)], from_s: f64, to_s: f64| {
+        f.iter()
+            .filter(|p| (from_s..to_s).contains(&p.0))
+            .map(|p| p.1)
+            .fold(0.0, f64::max)
+    };
+    let (clean, stats) = divergences_with_accel_step(&dir, OdometryConfig::default(), 0.0);
+    assert_eq!(stats.diverged_keyframes, 0, "the limit is off by default");
+    let (faulty, _) = divergences_with_accel_step(&dir, OdometryConfig::default(), 0.5);
+    let (before, after) = (max_m_s(&faulty, -3.0, 0.0), max_m_s(&faulty, 0.0, 2.0));
+    let clean_max = max_m_s(&clean, -3.0, 6.0);
+    println!(
+        "velocity divergence from the IMU's dead reckoning, max: 3 s before the fault \
+         {before:.3} m/s, 2 s after {after:.3} m/s; without a fault, from 3 s before to the end \
+         {clean_max:.3} m/s"
+    );
+    assert!(
+        after > 2.0 * before.max(clean_max),
+        "{after} {before} {clean_max}"
+    );
+    let limit_m_s = 0.5 * (after + before.max(clean_max));
+    let mut cfg = OdometryConfig::default();
+    cfg.tracking.keyframe_max_velocity_divergence_m_s = limit_m_s;
+    let (limited, stats) = divergences_with_accel_step(&dir, cfg.clone(), 0.5);
+    let above: Vec<f64> = limited
+        .iter()
+        .filter(|p| p.2 && p.1 > limit_m_s)
+        .map(|p| p.0)
+        .collect();
+    println!(
+        "limit {limit_m_s:.3} m/s: {} keyframes started at it; frames beyond it at {above:.2?} s \
+         from the fault",
+        stats.diverged_keyframes
+    );
+    assert!(stats.diverged_keyframes >= 1);
+    assert!(above.len() >= stats.diverged_keyframes);
+    assert!(above.iter().all(|t| *t >= 0.0), "{above:?}");
+    let (_, clean_limited) = divergences_with_accel_step(&dir, cfg.clone(), 0.0);
+    assert_eq!(clean_limited.diverged_keyframes, 0);
+    // The rule's wait after the window's newest keyframe (0.5 s by default; the built-in
+    // flight's keyframes come every ~0.3 s): without it, more keyframes are started by it.
+    cfg.tracking.keyframe_divergence_min_age_s = 0.0;
+    let (_, unhindered) = divergences_with_accel_step(&dir, cfg, 0.5);
+    println!(
+        "without the {:.1} s wait: {} keyframes started at the limit",
+        OdometryConfig::default()
+            .tracking
+            .keyframe_divergence_min_age_s,
+        unhindered.diverged_keyframes
+    );
+    assert!(unhindered.diverged_keyframes > stats.diverged_keyframes);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -112,6 +112,7 @@ mod tests {
                 photometric_step: Vector6::zeros(),
                 keyframe_id: Some(1),
                 wants_keyframe: false,
+                imu_velocity_divergence_m_s: None,
                 time_s: 0.0,
             },
             phase,

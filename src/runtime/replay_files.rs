@@ -38,13 +38,14 @@ pub fn trajectory(out: &ReplayOutput) -> Trajectory {
 /// overlap, residual RMS, IMU χ², keyframe, tracking time, position, velocity, biases,
 /// brightness, whether vision was down-weighted (`[tracking] vision_downweight_chi2`) and the
 /// tracking thread's whole frame split as in [`super::odometry::FrameTimes`] (ms; `cpu_ms`
-/// empty where the platform cannot tell).
+/// empty where the platform cannot tell) and the velocity's divergence from the IMU's dead
+/// reckoning since the window's newest keyframe (m/s; empty where not read).
 pub fn frames_csv(out: &ReplayOutput) -> String {
     let mut s = String::from(
         "t_ns,phase,flag,iters_l0,iters_l1,iters_l2,iters_l3,inlier_ratio,overlap,residual_rms_gray,\
          imu_chi2,keyframe_id,new_keyframe,tracking_ms,px_m,py_m,pz_m,vx_m_s,vy_m_s,vz_m_s,\
          bgx_rad_s,bgy_rad_s,bgz_rad_s,bax_m_s2,bay_m_s2,baz_m_s2,log_gain,offset_gray,downweighted,\
-         frame_ms,maps_ms,adjustments_ms,window_ms,other_ms,cpu_ms\n",
+         frame_ms,maps_ms,adjustments_ms,window_ms,other_ms,cpu_ms,imu_velocity_divergence_m_s\n",
     );
     for (i, (r, ph)) in out.frames.iter().zip(&out.phases).enumerate() {
         let n = &r.state.nav;
@@ -55,7 +56,7 @@ pub fn frames_csv(out: &ReplayOutput) -> String {
             .map_or(String::new(), |c| format!("{:.3}", c * 1e3));
         s.push_str(&format!(
             "{},{},{},{},{},{},{},{:.4},{:.4},{:.3},{:.3},{},{},{:.3},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},\
-             {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3},{},{:.3},{:.3},{:.3},{:.3},{:.3},{}\n",
+             {:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.4},{:.3},{},{:.3},{:.3},{:.3},{:.3},{:.3},{},{}\n",
             r.t.0,
             ph.as_str(),
             r.flag.map_or("", |f| f.as_str()),
@@ -91,6 +92,8 @@ pub fn frames_csv(out: &ReplayOutput) -> String {
             ft.window_s * 1e3,
             ft.other_s() * 1e3,
             cpu_ms,
+            r.imu_velocity_divergence_m_s
+                .map_or(String::new(), |d| format!("{d:.4}")),
         ));
     }
     s

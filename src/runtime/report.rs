@@ -109,6 +109,10 @@ pub struct ReplayReport {
     /// New keyframes started when the keyframe tracked had reached `[tracking]
     /// keyframe_max_age_s`.
     pub aged_keyframes: usize,
+    /// New keyframes started when the tracked velocity had left the IMU's dead reckoning from
+    /// the window's newest keyframe by more than `[tracking]
+    /// keyframe_max_velocity_divergence_m_s`.
+    pub diverged_keyframes: usize,
     /// Stored keyframes that failed their probation while the keyframe left for them was out of
     /// view: a new keyframe was started instead of going back (`[reuse] return_min_overlap`).
     pub returns_out_of_view: usize,
@@ -496,6 +500,7 @@ impl ReplayReport {
             mapper_keyframe_build_ms_p50: percentile_if_any(&kf_build_ms, 50.0),
             mapper_keyframe_build_ms_max: kf_build_ms.last().copied(),
             aged_keyframes: out.odometry.aged_keyframes,
+            diverged_keyframes: out.odometry.diverged_keyframes,
             returns_out_of_view: out.odometry.returns_out_of_view,
             zero_velocity_updates: out.odometry.zero_velocity_updates,
             takeoff_scale_corrections: out.odometry.takeoff_scales.clone(),

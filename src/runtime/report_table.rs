@@ -61,6 +61,10 @@ impl ReplayReport {
             self.aged_keyframes.to_string(),
         );
         row(
+            "keyframes at the velocity divergence limit",
+            self.diverged_keyframes.to_string(),
+        );
+        row(
             "failed returns, left out of view",
             self.returns_out_of_view.to_string(),
         );

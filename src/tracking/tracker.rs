@@ -117,6 +117,10 @@ pub struct TrackResult {
     pub keyframe_id: Option<u32>,
     /// The keyframe policy asks for a new keyframe at this frame.
     pub wants_keyframe: bool,
+    /// Set by the odometry: `|v − v_IMU|`, the velocity against the IMU integrated from the
+    /// keyframe window's newest keyframe (`[tracking] keyframe_max_velocity_divergence_m_s`),
+    /// m/s; `None` where not read.
+    pub imu_velocity_divergence_m_s: Option<f64>,
     /// Wall time spent in [`Tracker::track`], s.
     pub time_s: f64,
 }
@@ -255,6 +259,7 @@ impl Tracker {
             photometric_step: Vector6::zeros(),
             keyframe_id: self.keyframe.as_ref().map(|k| k.id),
             wants_keyframe: false,
+            imu_velocity_divergence_m_s: None,
             time_s: 0.0,
         }
     }

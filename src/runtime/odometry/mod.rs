@@ -109,6 +109,7 @@ mod mapper_link;
 mod refinement_jobs;
 mod reinit_shape;
 mod stats;
+mod velocity_divergence;
 mod window_link;
 
 pub use adjustment_log::{AdjustmentOutcome, AdjustmentRecord, adjustments_csv};
@@ -442,6 +443,9 @@ pub struct Odometry {
     /// `[window] inflight_gyro_noise`: the gyro's rotation against the tracked one, per keyframe
     /// interval.
     gyro_noise: GyroNoiseReading,
+    /// `[tracking] keyframe_max_velocity_divergence_m_s`: the IMU integrated from the window's
+    /// newest keyframe.
+    dead_reckoning: Option<velocity_divergence::DeadReckoning>,
 }
 
 impl Odometry {
@@ -589,6 +593,7 @@ impl Odometry {
             imu_noise: rig.noise,
             rotation_noise_scale: 1.0,
             gyro_noise: GyroNoiseReading::new(cfg.window.inflight_gyro_noise_intervals),
+            dead_reckoning: None,
             cfg,
             rig,
         }
@@ -860,6 +865,16 @@ impl Odometry {
                         0.0,
                     );
                 }
+                result.imu_velocity_divergence_m_s = self.velocity_divergence_m_s(&result);
+                let max_divergence_m_s = self.cfg.tracking.keyframe_max_velocity_divergence_m_s;
+                let diverged = max_divergence_m_s > 0.0
+                    && result
+                        .imu_velocity_divergence_m_s
+                        .is_some_and(|d| d > max_divergence_m_s)
+                    && self.window.newest().is_some_and(|(_, x)| {
+                        t.secs_since(x.nav.t) >= self.cfg.tracking.keyframe_divergence_min_age_s
+                    });
+                result.wants_keyframe |= diverged;
                 let r = &self.cfg.reuse;
                 // The stored keyframe does not fit after all — it loses its inliers on probation
                 // (occlusion, a different exposure, a bad map) or its brightness collapses at any
@@ -957,6 +972,9 @@ impl Odometry {
                         .keyframe_older_than(t, self.cfg.tracking.keyframe_max_age_s)
                     {
                         self.stats.aged_keyframes += 1;
+                    }
+                    if diverged {
+                        self.stats.diverged_keyframes += 1;
                     }
                     let history: Vec<MapFrame> = self.history.iter().cloned().collect();
                     let propagate = self.cfg.bootstrap.propagate_maps;

@@ -62,6 +62,9 @@ pub struct OdometryStats {
     /// New keyframes started when the keyframe tracked had reached `[tracking]
     /// keyframe_max_age_s` (possibly with another reason as well).
     pub aged_keyframes: usize,
+    /// New keyframes started when the tracked velocity had left the IMU's dead reckoning by more
+    /// than `[tracking] keyframe_max_velocity_divergence_m_s` (possibly with another reason).
+    pub diverged_keyframes: usize,
     /// Stored keyframes that failed their probation where the keyframe left was out of view
     /// (`[reuse] return_min_overlap`): a new keyframe was started instead of going back.
     pub returns_out_of_view: usize,

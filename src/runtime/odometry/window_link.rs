@@ -55,7 +55,7 @@ impl Odometry {
     }
 
     /// Whether the IMU buffer still reaches back to keyframe state `from`.
-    fn imu_buffered_since(&self, from: &FrameState) -> bool {
+    pub(super) fn imu_buffered_since(&self, from: &FrameState) -> bool {
         self.imu.front().is_some_and(|s| s.t <= from.nav.t)
     }
 
