@@ -14,9 +14,11 @@ use vidslam::runtime::odometry::{OdometryConfig, OdometryStats};
 use vidslam::time::TimeNs;
 
 /// The first 12 s of the built-in flight (2 s on the pad, the take-off and the first
-/// figure-eight), seed 11, with the simulator's noise.
-fn first_figure_eight() -> PathBuf {
-    drive::render_builtin(scratch::dir("map-scale-feedback"), 12.0, 11)
+/// figure-eight), seed 11, with the simulator's noise, rendered into `target/tmp/NAME`. Each test
+/// renders its own copy under its own name: the tests of this binary run at once, and a shared
+/// directory was emptied and rewritten by one while another read it.
+fn first_figure_eight(name: &str) -> PathBuf {
+    drive::render_builtin(scratch::dir(name), 12.0, 11)
 }
 
 /// Replays `dir` offline with `cfg` and the map tracked at 6 s made `depth_factor` too large;
@@ -82,7 +84,7 @@ fn mean_error_after_fault_pct(e: &[(f64, f64)]) -> f64 {
 
 #[test]
 fn a_map_made_too_large_is_brought_back_to_metric_by_the_windows_scale() {
-    let dir = first_figure_eight();
+    let dir = first_figure_eight("map-scale-feedback");
     let print = |what: &str, e: &[(f64, f64)]| {
         println!(
             "{what}: {}",
@@ -116,7 +118,7 @@ fn a_map_made_too_large_is_brought_back_to_metric_by_the_windows_scale() {
 /// the maps before the fault, metric, are left nearly as they were.
 #[test]
 fn maps_made_too_large_are_scaled_back_in_their_stored_copies_as_they_leave_the_window() {
-    let dir = drive::render_builtin(scratch::dir("stored-map-scale"), 12.0, 11);
+    let dir = first_figure_eight("stored-map-scale");
     let mut cfg = OdometryConfig::default();
     cfg.window.map_scale = true;
     cfg.window.map_scale_gain = 0.0;
@@ -196,7 +198,7 @@ fn divergences_with_accel_step(
 /// them without the rule's wait after a keyframe.
 #[test]
 fn an_accelerometer_off_the_images_is_read_and_the_divergence_limit_starts_keyframes() {
-    let dir = first_figure_eight();
+    let dir = first_figure_eight("velocity-divergence");
     let max_m_s = |f: &[(f64, f64, bool)], from_s: f64, to_s: f64| {
         f.iter()
             .filter(|p| (from_s..to_s).contains(&p.0))
