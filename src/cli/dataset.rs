@@ -1,6 +1,7 @@
 //! `vidslam dataset info DIR`: what an ASL/EuRoC folder holds; `vidslam dataset imu-check DIR`:
 //! how far its IMU agrees with its ground truth; `vidslam dataset adjust-check DIR`: how far the
-//! keyframe adjustment started at the truth moves the map.
+//! keyframe adjustment started at the truth moves the map; `vidslam dataset imu-rewrite DIR --out
+//! OUT`: a copy with its IMU turned and de-biased by hand.
 
 use crate::dataset::{AslDataset, Event};
 use crate::time::TimeNs;
@@ -66,6 +67,30 @@ pub enum DatasetCommand {
         #[arg(long, default_value_t = 10)]
         every_frames: usize,
     },
+    /// A copy of the dataset with its IMU put right by hand, to replay the same images with it:
+    /// each sample `ω' = Exp(r_g) ω − b_g`, `a' = Exp(r_a) a − b_a` (rotations taking the sensor's
+    /// axes to the body frame, as `[gyro_alignment] initial_rotation_deg`; biases in the body
+    /// frame). Everything else in `mav0/` is linked, not copied; OUT must be new or empty (see
+    /// `src/dataset/imu_rewrite.rs`).
+    ImuRewrite {
+        /// Dataset folder (containing `mav0/`, or `mav0/` itself).
+        dir: PathBuf,
+        /// Folder to write (`OUT/mav0/`); must not exist or be empty.
+        #[arg(long)]
+        out: PathBuf,
+        /// Rotation vector turning the gyro's axes onto the body frame, degrees `X,Y,Z`.
+        #[arg(long, value_parser = parse_xyz, allow_hyphen_values = true, default_value = "0,0,0")]
+        gyro_rotation_deg: Xyz,
+        /// Rotation vector turning the accelerometer's axes onto the body frame, degrees `X,Y,Z`.
+        #[arg(long, value_parser = parse_xyz, allow_hyphen_values = true, default_value = "0,0,0")]
+        accel_rotation_deg: Xyz,
+        /// Subtracted from the (turned) angular rate, rad/s `X,Y,Z`.
+        #[arg(long, value_parser = parse_xyz, allow_hyphen_values = true, default_value = "0,0,0")]
+        gyro_bias_rad_s: Xyz,
+        /// Subtracted from the (turned) specific force, m/s² `X,Y,Z`.
+        #[arg(long, value_parser = parse_xyz, allow_hyphen_values = true, default_value = "0,0,0")]
+        accel_bias_m_s2: Xyz,
+    },
 }
 
 pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
@@ -92,7 +117,66 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
             views,
             every_frames,
         } => adjust_check(&dir, config.as_deref(), views, every_frames),
+        DatasetCommand::ImuRewrite {
+            dir,
+            out,
+            gyro_rotation_deg,
+            accel_rotation_deg,
+            gyro_bias_rad_s,
+            accel_bias_m_s2,
+        } => imu_rewrite(
+            &dir,
+            &out,
+            &[
+                gyro_rotation_deg,
+                accel_rotation_deg,
+                gyro_bias_rad_s,
+                accel_bias_m_s2,
+            ],
+        ),
     }
+}
+
+/// Three components `X,Y,Z` of a command-line vector.
+#[derive(Clone, Copy, Debug)]
+pub struct Xyz(pub [f64; 3]);
+
+fn parse_xyz(s: &str) -> Result<Xyz, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("'{s}': {e} (expected three numbers X,Y,Z)"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(Xyz([x, y, z])),
+        _ => Err(format!("'{s}': expected three finite numbers X,Y,Z")),
+    }
+}
+
+/// `[gyro rotation °, accel rotation °, gyro bias rad/s, accel bias m/s²]`.
+fn imu_rewrite(dir: &std::path::Path, out: &std::path::Path, v: &[Xyz; 4]) -> anyhow::Result<()> {
+    use crate::dataset::{ImuRewrite, rewrite_dataset};
+    use nalgebra::Vector3;
+    let vec3 = v.map(|Xyz([x, y, z])| Vector3::new(x, y, z));
+    anyhow::ensure!(
+        vec3[0].norm() <= 30.0 && vec3[1].norm() <= 30.0,
+        "a rotation of more than 30° is not a mounting error (sensor axes → body frame, degrees): a frame change belongs in imu0/sensor.yaml"
+    );
+    let rw = ImuRewrite {
+        gyro_rotation_rad: vec3[0].map(f64::to_radians),
+        accel_rotation_rad: vec3[1].map(f64::to_radians),
+        gyro_bias_rad_s: vec3[2],
+        accel_bias_m_s2: vec3[3],
+    };
+    let s = rewrite_dataset(dir, out, &rw)?;
+    println!(
+        "wrote {} ({} IMU rows; linked from {}: {})",
+        s.imu_csv.display(),
+        s.samples,
+        dir.display(),
+        s.linked.join(", ")
+    );
+    Ok(())
 }
 
 fn adjust_check(

@@ -209,6 +209,11 @@ impl Iterator for ImuIter {
 }
 
 impl ImuIter {
+    /// The row last returned, byte for byte as in the file (without its line feed).
+    pub(crate) fn raw_line(&self) -> &str {
+        self.rows.raw_line()
+    }
+
     /// Streams an EuRoC `imu0/data.csv` file (timestamp ns, gyro xyz rad/s, accel xyz m/s^2).
     pub fn open(path: &Path) -> Result<Self, DatasetError> {
         Ok(ImuIter {
@@ -232,7 +237,7 @@ pub fn read_imu_csv_with_lines(path: &Path) -> Result<Vec<(ImuSample, String)>, 
     let mut it = ImuIter::open(path)?;
     let mut out = Vec::new();
     while let Some(s) = it.next() {
-        out.push((s?, it.rows.raw_line().to_string()));
+        out.push((s?, it.raw_line().to_string()));
     }
     Ok(out)
 }

@@ -5,6 +5,7 @@ mod asl;
 mod csv_lines;
 mod groundtruth;
 pub mod gx4_recording;
+mod imu_rewrite;
 mod sensor_yaml;
 pub mod trajectory;
 mod writer;
@@ -14,6 +15,9 @@ pub use asl::{
     read_imu_csv, read_imu_csv_with_lines,
 };
 pub use groundtruth::{GroundTruth, GroundTruthState, read_groundtruth};
+#[cfg(unix)]
+pub use imu_rewrite::rewrite_dataset;
+pub use imu_rewrite::{ImuRewrite, RewriteSummary};
 pub use sensor_yaml::{
     CameraSensor, ImuSensor, SensorYamlError, isometry_from_matrix, read_camera_yaml,
     read_imu_yaml, read_vignette_yaml, write_camera_yaml, write_imu_yaml, write_vignette_yaml,
