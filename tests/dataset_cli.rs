@@ -7,7 +7,15 @@ mod scratch;
 
 use cli::{text, vidslam};
 use nalgebra::{Rotation3, Vector3};
+use std::process::Output;
 use vidslam::dataset::{AslDataset, shared_data_or_skip};
+
+/// `vidslam dataset imu-rewrite DIR --out OUT FLAGS…`.
+fn imu_rewrite(dir: &str, out: &str, flags: &[&str]) -> Output {
+    let mut args = vec!["dataset", "imu-rewrite", dir, "--out", out];
+    args.extend_from_slice(flags);
+    vidslam(&args)
+}
 
 #[test]
 fn the_real_clip_rewritten_with_a_turned_gyro_and_an_accelerometer_bias_taken_out() {
@@ -16,17 +24,17 @@ fn the_real_clip_rewritten_with_a_turned_gyro_and_an_accelerometer_bias_taken_ou
     };
     let out = scratch::path("imu-rewrite-real-clip");
     let before = std::fs::read(src.join("mav0/imu0/data.csv")).unwrap();
-    let o = vidslam(&[
-        "dataset",
-        "imu-rewrite",
-        src.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--gyro-rotation-deg",
-        "-0.339,-0.013,-1.305",
-        "--accel-bias-m-s2",
-        "-0.017,0.542,0.064",
-    ]);
+    let (src_s, out_s) = (src.to_str().unwrap(), out.to_str().unwrap());
+    let o = imu_rewrite(
+        src_s,
+        out_s,
+        &[
+            "--gyro-rotation-deg",
+            "-0.339,-0.013,-1.305",
+            "--accel-bias-m-s2",
+            "-0.017,0.542,0.064",
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("linked from"), "{}", text(&o));
     assert_eq!(
@@ -69,16 +77,10 @@ fn the_real_clip_rewritten_with_a_turned_gyro_and_an_accelerometer_bias_taken_ou
         .fold(0.0, f64::max);
     assert!(moved > 1e-4, "largest change {moved} rad/s");
 
-    let info = vidslam(&["dataset", "info", out.to_str().unwrap()]);
+    let info = vidslam(&["dataset", "info", out_s]);
     assert!(info.status.success(), "{}", text(&info));
 
-    let again = vidslam(&[
-        "dataset",
-        "imu-rewrite",
-        src.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let again = imu_rewrite(src_s, out_s, &[]);
     assert!(!again.status.success());
     assert!(text(&again).contains("not empty"), "{}", text(&again));
     // Removing the copy removes its links, never what they point at.
@@ -93,27 +95,15 @@ fn a_vector_that_is_not_three_finite_numbers_names_its_flag() {
         ("--gyro-rotation-deg", "1,x,0"),
         ("--gyro-bias-rad-s", "0,0,NaN"),
     ] {
-        let o = vidslam(&[
-            "dataset",
-            "imu-rewrite",
-            "nowhere",
-            "--out",
-            "nowhere-out",
-            flag,
-            value,
-        ]);
+        let o = imu_rewrite("nowhere", "nowhere-out", &[flag, value]);
         assert!(!o.status.success());
         assert!(text(&o).contains(flag), "{flag} {value}: {}", text(&o));
     }
-    let o = vidslam(&[
-        "dataset",
-        "imu-rewrite",
+    let o = imu_rewrite(
         "nowhere",
-        "--out",
         "nowhere-out",
-        "--accel-rotation-deg",
-        "45,0,0",
-    ]);
+        &["--accel-rotation-deg", "45,0,0"],
+    );
     assert!(
         !o.status.success() && text(&o).contains("30°"),
         "{}",
