@@ -80,7 +80,8 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
 /// Writes `out/mav0/` from `src` (the folder holding `mav0/`, or `mav0/` itself): every entry of
 /// `mav0/` but `imu0` linked by its absolute path, `imu0/`'s files copied but `data.csv`, which is
 /// rewritten by `rw` row by row (a malformed row is an error naming its file and line; nothing is
-/// skipped). `out` must not exist or be an empty folder: a rewrite never overwrites a dataset.
+/// skipped, and `data.csv` appears only once complete). `out` must not exist or be an empty
+/// folder: a rewrite never overwrites a dataset.
 #[cfg(unix)]
 pub fn rewrite_dataset(
     src: &Path,
