@@ -127,12 +127,12 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
         } => imu_rewrite(
             &dir,
             &out,
-            &[
-                gyro_rotation_deg,
-                accel_rotation_deg,
-                gyro_bias_rad_s,
-                accel_bias_m_s2,
-            ],
+            &crate::dataset::ImuRewrite {
+                gyro_rotation_rad: gyro_rotation_deg.vector().map(f64::to_radians),
+                accel_rotation_rad: accel_rotation_deg.vector().map(f64::to_radians),
+                gyro_bias_rad_s: gyro_bias_rad_s.vector(),
+                accel_bias_m_s2: accel_bias_m_s2.vector(),
+            },
         ),
     }
 }
@@ -140,6 +140,12 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
 /// Three components `X,Y,Z` of a command-line vector.
 #[derive(Clone, Copy, Debug)]
 pub struct Xyz(pub [f64; 3]);
+
+impl Xyz {
+    fn vector(self) -> nalgebra::Vector3<f64> {
+        self.0.into()
+    }
+}
 
 fn parse_xyz(s: &str) -> Result<Xyz, String> {
     let v: Vec<f64> = s
@@ -153,22 +159,17 @@ fn parse_xyz(s: &str) -> Result<Xyz, String> {
     }
 }
 
-/// `[gyro rotation °, accel rotation °, gyro bias rad/s, accel bias m/s²]`.
-fn imu_rewrite(dir: &std::path::Path, out: &std::path::Path, v: &[Xyz; 4]) -> anyhow::Result<()> {
-    use crate::dataset::{ImuRewrite, rewrite_dataset};
-    use nalgebra::Vector3;
-    let vec3 = v.map(|Xyz([x, y, z])| Vector3::new(x, y, z));
+fn imu_rewrite(
+    dir: &std::path::Path,
+    out: &std::path::Path,
+    rw: &crate::dataset::ImuRewrite,
+) -> anyhow::Result<()> {
+    let max_rad = 30f64.to_radians();
     anyhow::ensure!(
-        vec3[0].norm() <= 30.0 && vec3[1].norm() <= 30.0,
+        rw.gyro_rotation_rad.norm() <= max_rad && rw.accel_rotation_rad.norm() <= max_rad,
         "a rotation of more than 30° is not a mounting error (sensor axes → body frame, degrees): a frame change belongs in imu0/sensor.yaml"
     );
-    let rw = ImuRewrite {
-        gyro_rotation_rad: vec3[0].map(f64::to_radians),
-        accel_rotation_rad: vec3[1].map(f64::to_radians),
-        gyro_bias_rad_s: vec3[2],
-        accel_bias_m_s2: vec3[3],
-    };
-    let s = rewrite_dataset(dir, out, &rw)?;
+    let s = crate::dataset::rewrite_dataset(dir, out, rw)?;
     println!(
         "wrote {} ({} IMU rows; linked from {}: {})",
         s.imu_csv.display(),

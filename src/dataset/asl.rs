@@ -58,15 +58,20 @@ pub enum Event {
     Frame(FrameRecord),
 }
 
+/// The `mav0/` folder of `root`: `root/mav0` if there is one, else `root` itself.
+pub(super) fn mav0_of(root: &Path) -> PathBuf {
+    if root.join("mav0").is_dir() {
+        root.join("mav0")
+    } else {
+        root.to_path_buf()
+    }
+}
+
 impl AslDataset {
     /// Opens `root` (either the folder holding `mav0/` or `mav0/` itself) and reads both sensor
     /// descriptions.
     pub fn open(root: &Path) -> Result<Self, DatasetError> {
-        let mav0 = if root.join("mav0").is_dir() {
-            root.join("mav0")
-        } else {
-            root.to_path_buf()
-        };
+        let mav0 = mav0_of(root);
         if !mav0.join("cam0").is_dir() && !mav0.join("imu0").is_dir() {
             return Err(DatasetError::Layout {
                 path: root.into(),

@@ -14,7 +14,11 @@
 //! gigabytes); `imu0/sensor.yaml` is copied; `imu0/data.csv` is written with each row's timestamp
 //! text as it was and the six values at full precision (Rust's shortest round-trip form).
 
-use super::{DatasetError, asl::ImuIter};
+use super::writer::{IMU_CSV_HEADER, io};
+use super::{
+    DatasetError,
+    asl::{ImuIter, mav0_of},
+};
 use crate::geometry::exp_so3;
 use crate::imu::ImuSample;
 use nalgebra::{Matrix3, Vector3};
@@ -67,16 +71,6 @@ pub struct RewriteSummary {
     pub imu_csv: PathBuf,
 }
 
-const DEFAULT_HEADER: &str = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],\
-     w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]";
-
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
-    move |source| DatasetError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// Writes `out/mav0/` from `src` (the folder holding `mav0/`, or `mav0/` itself): every entry of
 /// `mav0/` but `imu0` linked by its absolute path, `imu0/`'s files copied but `data.csv`, which is
 /// rewritten by `rw` row by row (a malformed row is an error naming its file and line; nothing is
@@ -88,11 +82,7 @@ pub fn rewrite_dataset(
     out: &Path,
     rw: &ImuRewrite,
 ) -> Result<RewriteSummary, DatasetError> {
-    let src_mav0 = if src.join("mav0").is_dir() {
-        src.join("mav0")
-    } else {
-        src.to_path_buf()
-    };
+    let src_mav0 = mav0_of(src);
     let src_imu = src_mav0.join("imu0/data.csv");
     if !src_imu.is_file() {
         return Err(DatasetError::Layout {
@@ -147,7 +137,7 @@ pub fn rewrite_dataset(
         if first.starts_with('#') {
             first.to_string()
         } else {
-            DEFAULT_HEADER.to_string()
+            IMU_CSV_HEADER.to_string()
         }
     };
     // Written under another name and renamed when complete: a rewrite stopped by a malformed row

@@ -20,7 +20,12 @@ pub struct AslWriter {
     depth_csv: Option<BufWriter<File>>,
 }
 
-fn io(path: &Path) -> impl Fn(std::io::Error) -> DatasetError + '_ {
+/// Header line of `imu0/data.csv` (EuRoC's).
+pub(super) const IMU_CSV_HEADER: &str = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],\
+     w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]";
+
+/// The error of an I/O operation on `path`, naming it.
+pub(super) fn io(path: &Path) -> impl Fn(std::io::Error) -> DatasetError + '_ {
     move |source| DatasetError::Io {
         path: path.into(),
         source,
@@ -64,11 +69,7 @@ impl AslWriter {
         };
         Ok(AslWriter {
             cam_csv: create_csv(&mav0.join("cam0/data.csv"), "#timestamp [ns],filename")?,
-            imu_csv: create_csv(
-                &mav0.join("imu0/data.csv"),
-                "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],\
-                 a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]",
-            )?,
+            imu_csv: create_csv(&mav0.join("imu0/data.csv"), IMU_CSV_HEADER)?,
             depth_csv,
             mav0,
         })
