@@ -1,7 +1,7 @@
 //! `vidslam dataset info DIR`: what an ASL/EuRoC folder holds; `vidslam dataset imu-check DIR`:
 //! how far its IMU agrees with its ground truth; `vidslam dataset adjust-check DIR`: how far the
 //! keyframe adjustment started at the truth moves the map; `vidslam dataset imu-rewrite DIR --out
-//! OUT`: a copy with its IMU turned and de-biased by hand.
+//! OUT`: a copy with its IMU turned and de-biased by hand, or with a band of another IMU mixed in.
 
 use crate::dataset::{AslDataset, Event};
 use crate::time::TimeNs;
@@ -70,8 +70,10 @@ pub enum DatasetCommand {
     /// A copy of the dataset with its IMU put right by hand, to replay the same images with it:
     /// each sample `ω' = Exp(r_g) ω − b_g`, `a' = Exp(r_a) a − b_a` (rotations taking the sensor's
     /// axes to the body frame, as `[gyro_alignment] initial_rotation_deg`; biases in the body
-    /// frame). Everything else in `mav0/` is linked, not copied; OUT must be new or empty (see
-    /// `src/dataset/imu_rewrite.rs`).
+    /// frame). Before that, another dataset's gyro or accelerometer may be mixed in, whole or in
+    /// a frequency band of its difference (`--gyro-from`, `--accel-from`, `--mix-band-hz`; see
+    /// `src/dataset/imu_mix.rs`). Everything else in `mav0/` is linked, not copied; OUT must be
+    /// new or empty (see `src/dataset/imu_rewrite.rs`).
     ImuRewrite {
         /// Dataset folder (containing `mav0/`, or `mav0/` itself).
         dir: PathBuf,
@@ -90,6 +92,17 @@ pub enum DatasetCommand {
         /// Subtracted from the (turned) specific force, m/s² `X,Y,Z`.
         #[arg(long, value_parser = parse_xyz, allow_hyphen_values = true, default_value = "0,0,0")]
         accel_bias_m_s2: Xyz,
+        /// Dataset whose gyro is mixed in (each row the donor's nearest in time, within half a
+        /// sample period).
+        #[arg(long)]
+        gyro_from: Option<PathBuf>,
+        /// Dataset whose accelerometer is mixed in.
+        #[arg(long)]
+        accel_from: Option<PathBuf>,
+        /// Band of the donor's difference from this dataset that is mixed in, Hz `LO,HI` (`0,inf`:
+        /// the donor's readings whole; `0.1,1`: only what differs at 0.1–1 Hz).
+        #[arg(long, value_parser = parse_band, default_value = "0,inf")]
+        mix_band_hz: [f64; 2],
     },
 }
 
@@ -124,6 +137,9 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
             accel_rotation_deg,
             gyro_bias_rad_s,
             accel_bias_m_s2,
+            gyro_from,
+            accel_from,
+            mix_band_hz: [lo_hz, hi_hz],
         } => imu_rewrite(
             &dir,
             &out,
@@ -132,6 +148,12 @@ pub fn run(args: DatasetArgs) -> anyhow::Result<()> {
                 accel_rotation_rad: accel_rotation_deg.vector().map(f64::to_radians),
                 gyro_bias_rad_s: gyro_bias_rad_s.vector(),
                 accel_bias_m_s2: accel_bias_m_s2.vector(),
+            },
+            &crate::dataset::DonorMix {
+                gyro_from,
+                accel_from,
+                lo_hz,
+                hi_hz,
             },
         ),
     }
@@ -159,17 +181,49 @@ fn parse_xyz(s: &str) -> Result<Xyz, String> {
     }
 }
 
+/// A frequency band `LO,HI` in Hz, `0 <= LO < HI` (`HI` may be `inf`).
+fn parse_band(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("'{s}': {e} (expected LO,HI in Hz)"))?;
+    match v[..] {
+        [lo, hi] if lo.is_finite() && lo >= 0.0 && hi > lo => Ok([lo, hi]),
+        _ => Err(format!(
+            "'{s}': expected LO,HI in Hz with 0 <= LO < HI (HI may be inf)"
+        )),
+    }
+}
+
 fn imu_rewrite(
     dir: &std::path::Path,
     out: &std::path::Path,
     rw: &crate::dataset::ImuRewrite,
+    mix: &crate::dataset::DonorMix,
 ) -> anyhow::Result<()> {
     let max_rad = 30f64.to_radians();
     anyhow::ensure!(
         rw.gyro_rotation_rad.norm() <= max_rad && rw.accel_rotation_rad.norm() <= max_rad,
         "a rotation of more than 30° is not a mounting error (sensor axes → body frame, degrees): a frame change belongs in imu0/sensor.yaml"
     );
-    let s = crate::dataset::rewrite_dataset(dir, out, rw)?;
+    anyhow::ensure!(
+        mix.gyro_from.is_some()
+            || mix.accel_from.is_some()
+            || (mix.lo_hz == 0.0 && mix.hi_hz == f64::INFINITY),
+        "--mix-band-hz needs --gyro-from or --accel-from (the band is of a donor's difference)"
+    );
+    let s = crate::dataset::rewrite_dataset(dir, out, rw, mix)?;
+    for (sensor, m) in &s.mixed {
+        let (name, unit) = match sensor {
+            crate::dataset::imu_mix::ImuSensorKind::Gyro => ("gyro", "rad/s"),
+            crate::dataset::imu_mix::ImuSensorKind::Accel => ("accelerometer", "m/s²"),
+        };
+        println!(
+            "mixed in the {name} at {}–{} Hz: {} rows matched, {} without a donor row within half a period (kept); band RMS ({:.4}, {:.4}, {:.4}) {unit}",
+            mix.lo_hz, mix.hi_hz, m.matched, m.unmatched, m.band_rms.x, m.band_rms.y, m.band_rms.z
+        );
+    }
     println!(
         "wrote {} ({} IMU rows; linked from {}: {})",
         s.imu_csv.display(),

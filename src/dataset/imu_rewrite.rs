@@ -13,11 +13,15 @@
 //! depth, ground truth and everything else in `mav0/` are linked, not copied (a render is
 //! gigabytes); `imu0/sensor.yaml` is copied; `imu0/data.csv` is written with each row's timestamp
 //! text as it was and the six values at full precision (Rust's shortest round-trip form).
+//!
+//! Before the turn and the bias, a band of another dataset's gyro or accelerometer may be mixed in
+//! ([`DonorMix`], `src/dataset/imu_mix.rs`).
 
+use super::imu_mix::{ImuSensorKind, MixSummary, mix_in};
 use super::writer::{IMU_CSV_HEADER, io};
 use super::{
     DatasetError,
-    asl::{ImuIter, mav0_of},
+    asl::{ImuIter, mav0_of, read_imu_csv},
 };
 use crate::geometry::exp_so3;
 use crate::imu::ImuSample;
@@ -60,11 +64,38 @@ impl ImuRewrite {
     }
 }
 
+/// Another dataset's gyro and/or accelerometer put into the rewritten one, in the frequency band
+/// `[lo_hz, hi_hz)` of their difference (`src/dataset/imu_mix.rs`); the default mixes nothing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DonorMix {
+    /// Dataset (folder holding `mav0/`, or `mav0/`) whose gyro is mixed in.
+    pub gyro_from: Option<PathBuf>,
+    /// Dataset whose accelerometer is mixed in.
+    pub accel_from: Option<PathBuf>,
+    /// Lower edge of the band, Hz (0: from the mean on).
+    pub lo_hz: f64,
+    /// Upper edge of the band, Hz (infinite: to the Nyquist rate).
+    pub hi_hz: f64,
+}
+
+impl Default for DonorMix {
+    fn default() -> Self {
+        DonorMix {
+            gyro_from: None,
+            accel_from: None,
+            lo_hz: 0.0,
+            hi_hz: f64::INFINITY,
+        }
+    }
+}
+
 /// What [`rewrite_dataset`] did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RewriteSummary {
     /// IMU rows written.
     pub samples: usize,
+    /// Each sensor mixed in from a donor, and how.
+    pub mixed: Vec<(ImuSensorKind, MixSummary)>,
     /// `mav0/` entries linked from the source (names), sorted.
     pub linked: Vec<String>,
     /// The new `mav0/imu0/data.csv`.
@@ -73,14 +104,16 @@ pub struct RewriteSummary {
 
 /// Writes `out/mav0/` from `src` (the folder holding `mav0/`, or `mav0/` itself): every entry of
 /// `mav0/` but `imu0` linked by its absolute path, `imu0/`'s files copied but `data.csv`, which is
-/// rewritten by `rw` row by row (a malformed row is an error naming its file and line; nothing is
-/// skipped, and `data.csv` appears only once complete). `out` must not exist or be an empty
-/// folder: a rewrite never overwrites a dataset.
+/// rewritten: `mix`'s donors mixed in, then every row through `rw` (a malformed row, here or in a
+/// donor, is an error naming its file and line; nothing is skipped, and `data.csv` appears only
+/// once complete). `out` must not exist or be an empty folder: a rewrite never overwrites a
+/// dataset.
 #[cfg(unix)]
 pub fn rewrite_dataset(
     src: &Path,
     out: &Path,
     rw: &ImuRewrite,
+    mix: &DonorMix,
 ) -> Result<RewriteSummary, DatasetError> {
     let src_mav0 = mav0_of(src);
     let src_imu = src_mav0.join("imu0/data.csv");
@@ -91,6 +124,46 @@ pub fn rewrite_dataset(
         });
     }
     let src_mav0 = src_mav0.canonicalize().map_err(io(&src_mav0))?;
+    // Every row read (and every donor) before anything is written: a band needs the whole record,
+    // and a bad donor leaves no half-made copy.
+    let mut samples = Vec::new();
+    let mut stamps = Vec::new();
+    let mut rows = ImuIter::open(&src_imu)?;
+    while let Some(s) = rows.next() {
+        samples.push(s?);
+        let stamp = rows.raw_line().split(',').next().unwrap_or_default();
+        stamps.push(stamp.trim().to_string());
+    }
+    let mut mixed = Vec::new();
+    for (sensor, from) in [
+        (ImuSensorKind::Gyro, &mix.gyro_from),
+        (ImuSensorKind::Accel, &mix.accel_from),
+    ] {
+        let Some(from) = from else { continue };
+        let donor_csv = mav0_of(from).join("imu0/data.csv");
+        if !donor_csv.is_file() {
+            return Err(DatasetError::Layout {
+                path: from.to_path_buf(),
+                msg: "no mav0/imu0/data.csv here to mix in".into(),
+            });
+        }
+        let donor = read_imu_csv(&donor_csv)?;
+        for (rows, path) in [(&samples, &src_imu), (&donor, &donor_csv)] {
+            if let Some(i) = rows.windows(2).position(|w| w[1].t.0 < w[0].t.0) {
+                return Err(DatasetError::Layout {
+                    path: path.clone(),
+                    msg: format!(
+                        "timestamps go backwards after data row {} (mixing needs time order)",
+                        i + 1
+                    ),
+                });
+            }
+        }
+        mixed.push((
+            sensor,
+            mix_in(&mut samples, &donor, sensor, mix.lo_hz, mix.hi_hz),
+        ));
+    }
     if out.exists() {
         let mut entries = std::fs::read_dir(out).map_err(io(out))?;
         if entries.next().is_some() {
@@ -147,31 +220,22 @@ pub fn rewrite_dataset(
     let mut w = BufWriter::new(std::fs::File::create(&partial).map_err(io(&partial))?);
     writeln!(w, "{header}").map_err(io(&partial))?;
     let m = rw.matrices();
-    let mut rows = ImuIter::open(&src_imu)?;
-    let mut samples = 0;
-    while let Some(s) = rows.next() {
-        let s = rw.with_matrices(&m, &s?);
-        let stamp = rows.raw_line().split(',').next().unwrap_or_default();
+    for (s, stamp) in samples.iter().zip(&stamps) {
+        let s = rw.with_matrices(&m, s);
         let (g, a) = (s.gyro_rad_s, s.accel_m_s2);
         writeln!(
             w,
             "{},{},{},{},{},{},{}",
-            stamp.trim(),
-            g.x,
-            g.y,
-            g.z,
-            a.x,
-            a.y,
-            a.z
+            stamp, g.x, g.y, g.z, a.x, a.y, a.z
         )
         .map_err(io(&partial))?;
-        samples += 1;
     }
     w.flush().map_err(io(&partial))?;
     drop(w);
     std::fs::rename(&partial, &imu_csv).map_err(io(&imu_csv))?;
     Ok(RewriteSummary {
-        samples,
+        samples: samples.len(),
+        mixed,
         linked,
         imu_csv,
     })
@@ -234,7 +298,7 @@ mod tests {
             accel_bias_m_s2: Vector3::new(0.0, 0.5, 0.0),
             ..Default::default()
         };
-        let sum = rewrite_dataset(&src, &out, &rw).unwrap();
+        let sum = rewrite_dataset(&src, &out, &rw, &DonorMix::default()).unwrap();
         assert_eq!(sum.samples, 2);
         assert_eq!(sum.linked, vec!["cam0".to_string()]);
         assert!(out.join("mav0/cam0").is_symlink());
@@ -254,7 +318,9 @@ mod tests {
             assert_eq!(r, &rw.apply(o));
         }
         // Never over an existing dataset.
-        let again = rewrite_dataset(&src, &out, &rw).unwrap_err().to_string();
+        let again = rewrite_dataset(&src, &out, &rw, &DonorMix::default())
+            .unwrap_err()
+            .to_string();
         assert!(again.contains("not empty"), "{again}");
     }
 
@@ -266,14 +332,24 @@ mod tests {
             &src,
             "#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n1,0,0,0,9.8,0,0\n2,0,0,x,9.8,0,0\n",
         );
-        let e = rewrite_dataset(&src, &tmp.path().join("out"), &ImuRewrite::default())
-            .unwrap_err()
-            .to_string();
+        let e = rewrite_dataset(
+            &src,
+            &tmp.path().join("out"),
+            &ImuRewrite::default(),
+            &DonorMix::default(),
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("data.csv") && e.contains(":3"), "{e}");
         assert!(!tmp.path().join("out/mav0/imu0/data.csv").exists());
-        let e = rewrite_dataset(tmp.path(), &tmp.path().join("o2"), &ImuRewrite::default())
-            .unwrap_err()
-            .to_string();
+        let e = rewrite_dataset(
+            tmp.path(),
+            &tmp.path().join("o2"),
+            &ImuRewrite::default(),
+            &DonorMix::default(),
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("no mav0/imu0/data.csv"), "{e}");
     }
 }

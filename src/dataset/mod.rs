@@ -5,6 +5,7 @@ mod asl;
 mod csv_lines;
 mod groundtruth;
 pub mod gx4_recording;
+pub mod imu_mix;
 mod imu_rewrite;
 mod sensor_yaml;
 pub mod trajectory;
@@ -17,7 +18,7 @@ pub use asl::{
 pub use groundtruth::{GroundTruth, GroundTruthState, read_groundtruth};
 #[cfg(unix)]
 pub use imu_rewrite::rewrite_dataset;
-pub use imu_rewrite::{ImuRewrite, RewriteSummary};
+pub use imu_rewrite::{DonorMix, ImuRewrite, RewriteSummary};
 pub use sensor_yaml::{
     CameraSensor, ImuSensor, SensorYamlError, isometry_from_matrix, read_camera_yaml,
     read_imu_yaml, read_vignette_yaml, write_camera_yaml, write_imu_yaml, write_vignette_yaml,
