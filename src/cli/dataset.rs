@@ -169,12 +169,16 @@ impl Xyz {
     }
 }
 
-fn parse_xyz(s: &str) -> Result<Xyz, String> {
-    let v: Vec<f64> = s
-        .split(',')
+/// The comma-separated numbers of a flag's value; `expected` names its form in the error.
+fn parse_numbers(s: &str, expected: &str) -> Result<Vec<f64>, String> {
+    s.split(',')
         .map(|c| c.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|e| format!("'{s}': {e} (expected three numbers X,Y,Z)"))?;
+        .map_err(|e| format!("'{s}': {e} (expected {expected})"))
+}
+
+fn parse_xyz(s: &str) -> Result<Xyz, String> {
+    let v = parse_numbers(s, "three numbers X,Y,Z")?;
     match v[..] {
         [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(Xyz([x, y, z])),
         _ => Err(format!("'{s}': expected three finite numbers X,Y,Z")),
@@ -183,11 +187,7 @@ fn parse_xyz(s: &str) -> Result<Xyz, String> {
 
 /// A frequency band `LO,HI` in Hz, `0 <= LO < HI` (`HI` may be `inf`).
 fn parse_band(s: &str) -> Result<[f64; 2], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|c| c.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("'{s}': {e} (expected LO,HI in Hz)"))?;
+    let v = parse_numbers(s, "LO,HI in Hz")?;
     match v[..] {
         [lo, hi] if lo.is_finite() && lo >= 0.0 && hi > lo => Ok([lo, hi]),
         _ => Err(format!(
