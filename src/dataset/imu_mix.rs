@@ -13,7 +13,9 @@
 //! components of the whole series whose frequency `k · rate / n` lies in `[lo, hi)` — a
 //! zero-phase, brick-wall band over the record (NumPy's `irfft(mask · rfft(d))`). `[0, ∞)` puts
 //! the donor's readings in whole, bit for bit. The series is taken as uniformly sampled at the
-//! base's median rate (EuRoC's IMU is; its stamps jitter by microseconds).
+//! base's median rate (EuRoC's IMU is; its stamps jitter by microseconds). A brick wall rings
+//! (Gibbs) around a step in the difference and wraps at the record's ends, so a band is a
+//! diagnosis of a slowly varying disagreement, not a filter for a stream.
 
 use crate::imu::ImuSample;
 use nalgebra::Vector3;
