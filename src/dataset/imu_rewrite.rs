@@ -21,7 +21,7 @@ use super::imu_mix::{ImuSensorKind, MixSummary, mix_in};
 use super::writer::{IMU_CSV_HEADER, io};
 use super::{
     DatasetError,
-    asl::{ImuIter, mav0_of, read_imu_csv},
+    asl::{mav0_of, read_imu_csv, read_imu_csv_with_lines},
 };
 use crate::geometry::exp_so3;
 use crate::imu::ImuSample;
@@ -126,19 +126,27 @@ pub fn rewrite_dataset(
     let src_mav0 = src_mav0.canonicalize().map_err(io(&src_mav0))?;
     // Every row read (and every donor) before anything is written: a band needs the whole record,
     // and a bad donor leaves no half-made copy.
-    let mut samples = Vec::new();
-    let mut stamps = Vec::new();
-    let mut rows = ImuIter::open(&src_imu)?;
-    while let Some(s) = rows.next() {
-        samples.push(s?);
-        let stamp = rows.raw_line().split(',').next().unwrap_or_default();
-        stamps.push(stamp.trim().to_string());
-    }
-    let mut mixed = Vec::new();
-    for (sensor, from) in [
+    let (mut samples, stamps): (Vec<ImuSample>, Vec<String>) = read_imu_csv_with_lines(&src_imu)?
+        .into_iter()
+        .map(|(s, line)| {
+            let stamp = line
+                .split(',')
+                .next()
+                .unwrap_or_default()
+                .trim()
+                .to_string();
+            (s, stamp)
+        })
+        .unzip();
+    let donors = [
         (ImuSensorKind::Gyro, &mix.gyro_from),
         (ImuSensorKind::Accel, &mix.accel_from),
-    ] {
+    ];
+    if donors.iter().any(|(_, from)| from.is_some()) {
+        in_time_order(&samples, &src_imu)?;
+    }
+    let mut mixed = Vec::new();
+    for (sensor, from) in donors {
         let Some(from) = from else { continue };
         let donor_csv = mav0_of(from).join("imu0/data.csv");
         if !donor_csv.is_file() {
@@ -148,17 +156,7 @@ pub fn rewrite_dataset(
             });
         }
         let donor = read_imu_csv(&donor_csv)?;
-        for (rows, path) in [(&samples, &src_imu), (&donor, &donor_csv)] {
-            if let Some(i) = rows.windows(2).position(|w| w[1].t.0 < w[0].t.0) {
-                return Err(DatasetError::Layout {
-                    path: path.clone(),
-                    msg: format!(
-                        "timestamps go backwards after data row {} (mixing needs time order)",
-                        i + 1
-                    ),
-                });
-            }
-        }
+        in_time_order(&donor, &donor_csv)?;
         mixed.push((
             sensor,
             mix_in(&mut samples, &donor, sensor, mix.lo_hz, mix.hi_hz),
@@ -239,6 +237,20 @@ pub fn rewrite_dataset(
         linked,
         imu_csv,
     })
+}
+
+/// An error naming `path` if `rows`' stamps go backwards anywhere (mixing walks them in order).
+fn in_time_order(rows: &[ImuSample], path: &Path) -> Result<(), DatasetError> {
+    match rows.windows(2).position(|w| w[1].t.0 < w[0].t.0) {
+        Some(i) => Err(DatasetError::Layout {
+            path: path.to_path_buf(),
+            msg: format!(
+                "timestamps go backwards after data row {} (mixing needs time order)",
+                i + 1
+            ),
+        }),
+        None => Ok(()),
+    }
 }
 
 #[cfg(test)]
