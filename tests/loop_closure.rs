@@ -292,3 +292,77 @@ fn a_view_of_another_place_closes_nothing() {
     assert_eq!(closer.correction(), Isometry3::identity());
     assert!(closer.stats().candidates_tried >= 1);
 }
+
+/// Two old keyframes mapped near each other (0 at `a`, 1 beside it), two more elsewhere with the
+/// odometry drifted, then keyframe 4 back between the first two. With one loop per keyframe the
+/// search ends at the first closure; with `max_loops_per_keyframe = 2` keyframe 4 closes to both
+/// old maps, the second predicted from the graph as solved with the first (the drift already
+/// mostly out of its prior), and the correction still takes the drift out.
+#[test]
+fn a_keyframe_closes_to_several_old_maps_when_allowed() {
+    let room = Room::new();
+    let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
+    let b = camera_pose(Vector3::new(-0.7, -0.1, 1.2), 3f64.to_radians());
+    let truth_4 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
+    let (image_4, _) = room.view(4, &truth_4);
+    let d = drift();
+    let run = |max_loops: usize| {
+        let cfg = LoopClosureConfig {
+            max_loops_per_keyframe: max_loops,
+            ..config()
+        };
+        let mut closer = LoopCloser::new(cfg, room.camera);
+        let mut host = None;
+        for (id, t) in [(0u32, a), (1, b)] {
+            let (img, depth) = room.view(id as u64, &t);
+            closer.add_keyframe(id, &t, host, &img);
+            closer.attach_map(id, &room.map(&t, &img, &depth));
+            host = Some((id, t));
+        }
+        for (id, (x, yaw)) in [(2u32, (0.2, 2.0)), (3, (0.5, 2.5))] {
+            let truth = camera_pose(Vector3::new(x, 0.1, 1.2), yaw);
+            let (img, _) = room.view(id as u64, &truth);
+            let odometry = d * truth;
+            let out = closer.add_keyframe(id, &odometry, host, &img);
+            assert_eq!(out.loops, 0, "keyframe {id} looks elsewhere");
+            host = Some((id, odometry));
+        }
+        let odometry_4 = d * truth_4;
+        let out = closer.add_keyframe(4, &odometry_4, host, &image_4);
+        let err = (closer.correction() * odometry_4).inverse() * truth_4;
+        (out, closer.take_closures(), err, odometry_4)
+    };
+
+    let (one, closures, err, _) = run(1);
+    assert_eq!((one.loops, closures.len()), (1, 1), "{one:?}");
+    assert!(err.translation.vector.norm() < 0.02, "{err}");
+
+    let (two, closures, err, odometry_4) = run(2);
+    assert_eq!((two.loops, closures.len()), (2, 2), "{two:?}");
+    assert_eq!(two.closed_to, Some(closures[0].old_id));
+    let mut old: Vec<u32> = closures.iter().map(|c| c.old_id).collect();
+    old.sort_unstable();
+    assert_eq!(old, vec![0, 1]);
+    assert!(closures.iter().all(|c| c.new_id == 4));
+    // The first loop was predicted from the drifted odometry, the second from the graph after
+    // the first: its prior is near the truth.
+    let prior_error_m = |c: &vidslam::loop_closure::closer::LoopClosure| {
+        let t_old = if c.old_id == 0 { a } else { b };
+        ((t_old.inverse() * truth_4).inverse() * c.prior_t_old_new)
+            .translation
+            .vector
+            .norm()
+    };
+    let drift_m = (odometry_4.inverse() * truth_4).translation.vector.norm();
+    let (first_m, second_m) = (prior_error_m(&closures[0]), prior_error_m(&closures[1]));
+    println!(
+        "drift {drift_m:.3} m; priors of the two loops off by {first_m:.4} / {second_m:.4} m; \
+         after both {:.4} m {:.3}°",
+        err.translation.vector.norm(),
+        err.rotation.angle().to_degrees()
+    );
+    assert!(first_m > 0.1, "{first_m}");
+    assert!(second_m < 0.03, "{second_m}");
+    assert!(err.translation.vector.norm() < 0.02, "{err}");
+    assert!(err.rotation.angle() < 0.3f64.to_radians(), "{err}");
+}

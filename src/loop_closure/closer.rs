@@ -56,8 +56,14 @@ pub struct LoopClosureConfig {
     pub max_distance_m: f64,
     /// …and its optical axis at most this far from the new one's, rad.
     pub max_angle_rad: f64,
-    /// Candidates tried per new keyframe (nearest first); the first that closes ends the search.
+    /// Candidates tried per new keyframe (nearest first); the search ends when
+    /// `max_loops_per_keyframe` of them have closed.
     pub max_candidates: usize,
+    /// Loops closed per new keyframe at most, each to another old keyframe (1: the first that
+    /// closes ends the search). Each loop edge is measured on one old keyframe's map, so its error
+    /// is mostly that map's depth error; loops to several old maps average it. Each later
+    /// candidate is predicted from the graph as solved with the loops before it.
+    pub max_loops_per_keyframe: usize,
     /// A closure needs at least this many PnP inliers…
     pub min_inliers: usize,
     /// …this fraction of the matches as inliers…
@@ -142,6 +148,7 @@ impl Default for LoopClosureConfig {
             max_distance_m: 1.5,
             max_angle_rad: 0.5,
             max_candidates: 3,
+            max_loops_per_keyframe: 1,
             min_inliers: 20,
             min_inlier_ratio: 0.4,
             max_inlier_rms_px: 1.5,
@@ -184,8 +191,10 @@ struct Entry {
 pub struct KeyframeOutcome {
     /// Loop candidates tried.
     pub candidates: usize,
-    /// A loop was closed to this keyframe id.
+    /// A loop was closed to this keyframe id (the first, when several were).
     pub closed_to: Option<u32>,
+    /// Loops closed (at most `max_loops_per_keyframe`).
+    pub loops: usize,
     /// PnP inliers of the closure (or of the best failed try).
     pub inliers: usize,
 }
@@ -483,15 +492,15 @@ impl LoopCloser {
         let mut out = KeyframeOutcome::default();
         let new = &self.entries[&id];
         let new_node = new.node;
-        let t_world_new = self.graph.pose(new_node);
-        let axis_new = optical_axis(&t_world_new);
+        let t_world_new0 = self.graph.pose(new_node);
+        let axis_new = optical_axis(&t_world_new0);
         let mut candidates: Vec<(f64, u32)> = self
             .entries
             .iter()
             .filter(|(_, e)| e.has_points && e.node + self.cfg.min_age_keyframes <= new_node)
             .filter_map(|(&cid, e)| {
                 let t = self.graph.pose(e.node);
-                let d = (t.translation.vector - t_world_new.translation.vector).norm();
+                let d = (t.translation.vector - t_world_new0.translation.vector).norm();
                 let a = optical_axis(&t).angle(&axis_new);
                 (d <= self.cfg.max_distance_m && a <= self.cfg.max_angle_rad).then_some((d, cid))
             })
@@ -502,6 +511,8 @@ impl LoopCloser {
             out.candidates += 1;
             self.stats.candidates_tried += 1;
             let old = &self.entries[&cid];
+            // As solved with the loops this keyframe closed before (unchanged until one does).
+            let t_world_new = self.graph.pose(new_node);
             let t_world_old = self.graph.pose(old.node);
             // The relative pose the graph predicts: the old camera's points into the new one.
             let prior_t_new_old = t_world_new.inverse() * t_world_old;
@@ -588,8 +599,11 @@ impl LoopCloser {
                 t_old_new,
                 prior_t_old_new: prior_t_new_old.inverse(),
             });
-            out.closed_to = Some(cid);
-            break;
+            out.closed_to.get_or_insert(cid);
+            out.loops += 1;
+            if out.loops >= self.cfg.max_loops_per_keyframe {
+                break;
+            }
         }
         out
     }
