@@ -336,6 +336,12 @@ fn a_keyframe_closes_to_several_old_maps_when_allowed() {
     let (one, closures, err, _) = run(1);
     assert_eq!((one.loops, closures.len()), (1, 1), "{one:?}");
     assert!(err.translation.vector.norm() < 0.02, "{err}");
+    let (zero, closures, _, _) = run(0);
+    assert_eq!(
+        (zero.loops, closures.len()),
+        (1, 1),
+        "0 is taken as 1: {zero:?}"
+    );
 
     let (two, closures, err, odometry_4) = run(2);
     assert_eq!((two.loops, closures.len()), (2, 2), "{two:?}");

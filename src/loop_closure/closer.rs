@@ -60,7 +60,7 @@ pub struct LoopClosureConfig {
     /// `max_loops_per_keyframe` of them have closed.
     pub max_candidates: usize,
     /// Loops closed per new keyframe at most, each to another old keyframe (1: the first that
-    /// closes ends the search). Each loop edge is measured on one old keyframe's map, so its error
+    /// closes ends the search; 0 is taken as 1). Each loop edge is measured on one old keyframe's map, so its error
     /// is mostly that map's depth error; loops to several old maps average it. Each later
     /// candidate is predicted from the graph as solved with the loops before it.
     pub max_loops_per_keyframe: usize,
@@ -492,15 +492,16 @@ impl LoopCloser {
         let mut out = KeyframeOutcome::default();
         let new = &self.entries[&id];
         let new_node = new.node;
-        let t_world_new0 = self.graph.pose(new_node);
-        let axis_new = optical_axis(&t_world_new0);
+        // Candidates are chosen around the new keyframe as placed before any loop of its own.
+        let t_world_new_searched = self.graph.pose(new_node);
+        let axis_new = optical_axis(&t_world_new_searched);
         let mut candidates: Vec<(f64, u32)> = self
             .entries
             .iter()
             .filter(|(_, e)| e.has_points && e.node + self.cfg.min_age_keyframes <= new_node)
             .filter_map(|(&cid, e)| {
                 let t = self.graph.pose(e.node);
-                let d = (t.translation.vector - t_world_new0.translation.vector).norm();
+                let d = (t.translation.vector - t_world_new_searched.translation.vector).norm();
                 let a = optical_axis(&t).angle(&axis_new);
                 (d <= self.cfg.max_distance_m && a <= self.cfg.max_angle_rad).then_some((d, cid))
             })
@@ -601,7 +602,7 @@ impl LoopCloser {
             });
             out.closed_to.get_or_insert(cid);
             out.loops += 1;
-            if out.loops >= self.cfg.max_loops_per_keyframe {
+            if out.loops >= self.cfg.max_loops_per_keyframe.max(1) {
                 break;
             }
         }
