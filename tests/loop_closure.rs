@@ -135,20 +135,35 @@ fn fly_with(
     closer.set_odometry_noise_scale(odometry_noise_scale);
     closer.add_keyframe(0, &a, None, &img_a);
     attach(&mut closer, &room.map(&a, &img_a, &depth_a));
-    let d = drift();
-    let mut host = (0u32, a);
-    for (k, (x, yaw)) in [(0.2, 2.0), (0.5, 2.5)].into_iter().enumerate() {
-        let truth = camera_pose(Vector3::new(x, 0.1, 1.2), yaw);
-        let (img, _) = room.view(k as u64 + 1, &truth);
-        let odometry = d * truth;
-        let id = k as u32 + 1;
-        let out = closer.add_keyframe(id, &odometry, Some(host), &img);
-        assert_eq!(out.closed_to, None, "keyframe {id} is too young to close");
-        host = (id, odometry);
-    }
-    let odometry_3 = d * truth_3;
+    let host = fly_away(room, &mut closer, (0, a));
+    let odometry_3 = drift() * truth_3;
     let out = closer.add_keyframe(3, &odometry_3, Some(host), image_3);
     (closer, odometry_3, out.closed_to)
+}
+
+/// Two keyframes after `host` (ids `host.0 + 1`, `+ 2`) at the other end of the room looking
+/// the other way, placed by the odometry with [`drift`]; neither closes a loop. Returns the
+/// last as the next host.
+fn fly_away(
+    room: &Room,
+    closer: &mut LoopCloser,
+    host: (u32, Isometry3<f64>),
+) -> (u32, Isometry3<f64>) {
+    let mut host = host;
+    for (x, yaw) in [(0.2, 2.0), (0.5, 2.5)] {
+        let id = host.0 + 1;
+        let truth = camera_pose(Vector3::new(x, 0.1, 1.2), yaw);
+        let (img, _) = room.view(id as u64, &truth);
+        let odometry = drift() * truth;
+        let out = closer.add_keyframe(id, &odometry, Some(host), &img);
+        assert_eq!(
+            (out.closed_to, out.loops),
+            (None, 0),
+            "keyframe {id} closes nothing"
+        );
+        host = (id, odometry);
+    }
+    host
 }
 
 #[test]
@@ -305,7 +320,6 @@ fn a_keyframe_closes_to_several_old_maps_when_allowed() {
     let b = camera_pose(Vector3::new(-0.7, -0.1, 1.2), 3f64.to_radians());
     let truth_4 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
     let (image_4, _) = room.view(4, &truth_4);
-    let d = drift();
     let run = |max_loops: usize| {
         let cfg = LoopClosureConfig {
             max_loops_per_keyframe: max_loops,
@@ -319,16 +333,9 @@ fn a_keyframe_closes_to_several_old_maps_when_allowed() {
             closer.attach_map(id, &room.map(&t, &img, &depth));
             host = Some((id, t));
         }
-        for (id, (x, yaw)) in [(2u32, (0.2, 2.0)), (3, (0.5, 2.5))] {
-            let truth = camera_pose(Vector3::new(x, 0.1, 1.2), yaw);
-            let (img, _) = room.view(id as u64, &truth);
-            let odometry = d * truth;
-            let out = closer.add_keyframe(id, &odometry, host, &img);
-            assert_eq!(out.loops, 0, "keyframe {id} looks elsewhere");
-            host = Some((id, odometry));
-        }
-        let odometry_4 = d * truth_4;
-        let out = closer.add_keyframe(4, &odometry_4, host, &image_4);
+        let host = fly_away(&room, &mut closer, (1, b));
+        let odometry_4 = drift() * truth_4;
+        let out = closer.add_keyframe(4, &odometry_4, Some(host), &image_4);
         let err = (closer.correction() * odometry_4).inverse() * truth_4;
         (out, closer.take_closures(), err, odometry_4)
     };

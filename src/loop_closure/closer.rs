@@ -60,9 +60,10 @@ pub struct LoopClosureConfig {
     /// `max_loops_per_keyframe` of them have closed.
     pub max_candidates: usize,
     /// Loops closed per new keyframe at most, each to another old keyframe (1: the first that
-    /// closes ends the search; 0 is taken as 1). Each loop edge is measured on one old keyframe's map, so its error
-    /// is mostly that map's depth error; loops to several old maps average it. Each later
-    /// candidate is predicted from the graph as solved with the loops before it.
+    /// closes ends the search; 0 is taken as 1). Each loop edge is measured on one old
+    /// keyframe's map, so its error is mostly that map's depth error; loops to several old maps
+    /// average it. Each later candidate is predicted from the graph as solved with the loops
+    /// before it.
     pub max_loops_per_keyframe: usize,
     /// A closure needs at least this many PnP inliers…
     pub min_inliers: usize,
