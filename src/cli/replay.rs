@@ -11,7 +11,7 @@ use crate::runtime::map_depth::{keyframe_depth_errors, keyframes_csv};
 use crate::runtime::odometry::OdometryFrame;
 use crate::runtime::odometry::{adjustments_csv, loop_edge_errors, loop_edge_summary, loops_csv};
 use crate::runtime::replay::{FrameObserver, StartMode, replay_observed};
-use crate::runtime::replay_files::{frames_csv, write_ply};
+use crate::runtime::replay_files::{frames_csv, hindsight_trajectory, write_ply};
 use crate::runtime::scale_observer::imu_scale_csv;
 use crate::runtime::true_view_poses::TrueCameraPoses;
 use crate::runtime::{Config, DepthSource, ReplayOptions, ReplayReport, trajectory};
@@ -26,8 +26,10 @@ const IMPLIED_BIAS_WINDOW_S: f64 = 2.0;
 
 /// Runs the odometry over DIR (an ASL/EuRoC folder) and writes OUT/trajectory.tum (body pose in the
 /// gravity-aligned world, every frame), OUT/frames.csv (per-frame diagnostics), OUT/report.json (frame counts, tracking time, ATE and
-/// scale error against ground truth with SE3 alignment), OUT/trajectory.png and, with the
-/// semidense mapper, OUT/semidense.ply.
+/// scale error against ground truth with SE3 alignment), OUT/trajectory.png, with the
+/// semidense mapper OUT/semidense.ply and, with loop closure, OUT/keyframes_graph.tum and
+/// OUT/trajectory_hindsight.tum (the keyframes and the published frames moved to the loop
+/// corrections at the end: diagnostics of what causality costs, not poses to fly on).
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
     /// The dataset folder (containing mav0/).
@@ -258,6 +260,17 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         graph.write(&a.out.join("keyframes_graph.tum"), TrajectoryFormat::Tum)?;
         if let Some(gt_poses) = &gt_poses {
             report.graph_keyframe_ate_m = evaluate(gt_poses, &graph, &EvalOptions::default())
+                .ok()
+                .map(|e| e.ate_rmse_m);
+        }
+    }
+    if let Some(hindsight) = hindsight_trajectory(&out) {
+        hindsight.write(
+            &a.out.join("trajectory_hindsight.tum"),
+            TrajectoryFormat::Tum,
+        )?;
+        if let Some(gt_poses) = &gt_poses {
+            report.hindsight_ate_m = evaluate(gt_poses, &hindsight, &EvalOptions::default())
                 .ok()
                 .map(|e| e.ate_rmse_m);
         }

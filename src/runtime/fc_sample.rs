@@ -119,6 +119,7 @@ mod tests {
             valid: true,
             resets: 2,
             loop_corrections: 3,
+            loop_world: None,
             scale_fault: false,
             speed_fault: false,
             omega_body_rad_s: Vector3::new(0.01, 0.02, -0.03),

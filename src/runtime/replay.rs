@@ -10,7 +10,8 @@ use super::keyframe_bundle::KeyframeBundleConfig;
 use super::keyframe_store::ReuseConfig;
 use super::mapping_worker::MappingOutput;
 use super::odometry::{
-    BootstrapConfig, FrameTimes, Odometry, OdometryConfig, OdometryFrame, OdometryStats, Phase, Rig,
+    BootstrapConfig, FrameTimes, LoopWorld, Odometry, OdometryConfig, OdometryFrame, OdometryStats,
+    Phase, Rig,
 };
 use super::scale_observer::ScaleObserverConfig;
 use super::thread_priority::RealtimeGuard;
@@ -163,6 +164,9 @@ pub struct ReplayOutput {
     /// The tracking thread's wall time on each of `frames` and its parts
     /// ([`super::odometry::OdometryFrame::times`]; with ground-truth depth, tracking alone).
     pub frame_times: Vec<FrameTimes>,
+    /// The loop closer's world and correction of each of `frames`
+    /// ([`super::odometry::OdometryFrame::loop_world`]; empty with ground-truth depth).
+    pub loop_worlds: Vec<Option<LoopWorld>>,
     /// Frames read before the first valid pose (no rest detected yet).
     pub frames_waiting: usize,
     /// What the mapping thread built (empty with ground-truth depth).
@@ -398,6 +402,7 @@ fn replay_full(
             out.frames.push(f.result);
             out.phases.push(f.phase);
             out.frame_times.push(f.times);
+            out.loop_worlds.push(f.loop_world);
         } else {
             out.frames_waiting += 1;
         }

@@ -1,5 +1,6 @@
-//! The files a replay writes beside `report.json`: the trajectory (`trajectory.tum`), the per-frame
-//! diagnostics (`frames.csv`) and the semidense map (`semidense.ply`).
+//! The files a replay writes beside `report.json`: the trajectory (`trajectory.tum`) and in
+//! hindsight (`trajectory_hindsight.tum`), the per-frame diagnostics (`frames.csv`) and the
+//! semidense map (`semidense.ply`).
 
 use super::replay::ReplayOutput;
 use crate::dataset::{StampedPose, Trajectory};
@@ -32,6 +33,30 @@ pub fn trajectory(out: &ReplayOutput) -> Trajectory {
             })
             .collect(),
     )
+}
+
+/// The published trajectory in hindsight (`trajectory_hindsight.tum`): each frame's pose moved
+/// from the loop correction it was published with to its world's correction at the end
+/// ([`crate::runtime::odometry::HindsightCorrections::moved`]); a frame published without one
+/// stays as it was. `None` without loop closure, or when no frame was corrected (`[loop_closure]
+/// correct_published_pose = false`).
+pub fn hindsight_trajectory(out: &ReplayOutput) -> Option<Trajectory> {
+    let h = out.odometry.loop_hindsight.as_ref()?;
+    let corrected =
+        out.loop_worlds.len() == out.frames.len() && out.loop_worlds.iter().any(Option::is_some);
+    corrected.then(|| {
+        Trajectory::new(
+            (out.frames.iter().zip(&out.loop_worlds))
+                .map(|(r, world)| {
+                    let published = pose_of(&r.state);
+                    StampedPose {
+                        t: r.t,
+                        t_world_body: world.map_or(published, |w| h.moved(&w, &published)),
+                    }
+                })
+                .collect(),
+        )
+    })
 }
 
 /// Per-frame diagnostics as CSV (`frames.csv`): time, flag, iterations per level, inlier ratio,

@@ -377,6 +377,12 @@ pub struct ReplayReport {
     /// `ate_rmse_m` as they were then; absent without loop closure or ground truth.
     #[serde(default)]
     pub graph_keyframe_ate_m: Option<f64>,
+    /// ATE RMSE (SE3 alignment) of the published frames in hindsight
+    /// (`trajectory_hindsight.tum`: each moved to its world's loop correction at the end), m —
+    /// what `ate_rmse_m` would be had every loop been known from the first frame; absent without
+    /// loop closure or ground truth.
+    #[serde(default)]
+    pub hindsight_ate_m: Option<f64>,
     /// Evaluation against ground truth (SE3 alignment, metric), if it could be computed.
     #[serde(skip)]
     pub eval: Option<EvalReport>,
@@ -667,6 +673,7 @@ impl ReplayReport {
             loop_closure: out.odometry.loop_closure.clone(),
             loop_edges: None,
             graph_keyframe_ate_m: None,
+            hindsight_ate_m: None,
             gyro_alignment_deg: g.applied_rad.map(f64::to_degrees),
             gyro_alignment_estimate_deg: g.estimate_rad.map(|v| v.map(f64::to_degrees)),
             gyro_alignment_std_deg: g.estimate_std_rad.map(|v| v.map(f64::to_degrees)),

@@ -269,6 +269,17 @@ impl ReplayReport {
                     ),
                 );
             }
+            if let Some(ate_m) = self.hindsight_ate_m {
+                row(
+                    "frames in hindsight",
+                    format!(
+                        "ATE RMSE {:.4} m of the published frames moved to the loop corrections \
+                         at the end (trajectory_hindsight.tum; not flyable: causality costs the \
+                         rest)",
+                        ate_m
+                    ),
+                );
+            }
             if l.guided_returns > 0 {
                 row(
                     "guided returns",

@@ -8,6 +8,7 @@
 //! next one by a looser edge), and its correction is taken when it arrives.
 
 use super::Odometry;
+use super::loop_hindsight::{HindsightCorrections, LoopWorld};
 use super::loop_log::LoopRecord;
 use crate::camera::CameraModel;
 use crate::geometry::se3;
@@ -125,6 +126,8 @@ pub(super) struct LoopLink {
     started: HashMap<u32, Started>,
     /// Every loop closed, in order (`OUT/loops.csv`).
     closures: Vec<LoopRecord>,
+    /// The newest keyframe handed to the closer.
+    newest: Option<u32>,
 }
 
 impl LoopLink {
@@ -180,6 +183,7 @@ impl LoopLink {
             guided_returns: 0,
             started: HashMap::new(),
             closures: Vec::new(),
+            newest: None,
         }
     }
 
@@ -274,6 +278,11 @@ impl LoopLink {
     /// newest keyframe's.
     pub(super) fn correction_for(&mut self, tracked: Option<u32>) -> Isometry3<f64> {
         self.receive();
+        self.resolve(tracked)
+    }
+
+    /// [`Self::correction_for`] as of the closer's last report.
+    fn resolve(&self, tracked: Option<u32>) -> Isometry3<f64> {
         let mut id = tracked;
         for _ in 0..=MAX_HOST_STEPS {
             let Some(k) = id else { break };
@@ -283,6 +292,29 @@ impl LoopLink {
             id = self.started.get(&k).and_then(|s| s.host);
         }
         self.correction
+    }
+
+    /// The world of a pose published with correction `c` while keyframe `tracked` is tracked
+    /// (none tracked: the newest keyframe's, whose correction [`Self::correction_for`] gives).
+    pub(super) fn world(&self, tracked: Option<u32>, c: Isometry3<f64>) -> LoopWorld {
+        LoopWorld {
+            keyframe: tracked.or(self.newest),
+            correction: c,
+        }
+    }
+
+    /// Every keyframe's correction as the graph gives it now, the end of a replay (real time: as
+    /// of the closer's last report): the published poses in hindsight.
+    pub(super) fn hindsight(&mut self) -> HindsightCorrections {
+        self.receive();
+        let first = (self.started.iter()).min_by_key(|(_, s)| s.t);
+        HindsightCorrections {
+            by_keyframe: (self.started.keys())
+                .map(|&id| (id, self.resolve(Some(id))))
+                .collect(),
+            first: first.map_or(self.correction, |(&id, _)| self.resolve(Some(id))),
+            newest: self.correction,
+        }
     }
 
     /// The correction applied to the published pose while keyframe `tracked` is tracked
@@ -390,6 +422,7 @@ impl Odometry {
                 },
             );
         }
+        link.newest = Some(id);
         link.submit(LoopJob::Keyframe {
             id,
             t_world_cam,

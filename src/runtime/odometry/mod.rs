@@ -103,6 +103,7 @@ mod bootstrap_config;
 mod gyro_link;
 mod gyro_noise_link;
 mod keyframe_returns;
+mod loop_hindsight;
 mod loop_link;
 mod loop_log;
 mod mapper_link;
@@ -116,6 +117,7 @@ pub use adjustment_log::{AdjustmentOutcome, AdjustmentRecord, adjustments_csv};
 pub use bootstrap_config::{BootstrapConfig, TakeoffRefinement};
 pub use gyro_link::GyroAlignmentStats;
 use gyro_link::GyroLink;
+pub use loop_hindsight::{HindsightCorrections, LoopWorld};
 use loop_link::LoopLink;
 pub use loop_log::{
     LoopEdgeErrors, LoopEdgeSummary, LoopRecord, loop_edge_errors, loop_edge_summary, loops_csv,
@@ -161,6 +163,10 @@ pub struct OdometryFrame {
     /// `[loop_closure] reset_min_jump_m` / `_rad` since the last time (MAVLink `reset_counter`
     /// counts these too).
     pub loop_corrections: u32,
+    /// The loop closer's correction applied to this frame's pose and the keyframe whose world it
+    /// is (`[loop_closure] correct_published_pose`, valid frames; else `None`): what moves the
+    /// pose in hindsight ([`OdometryStats::loop_hindsight`]).
+    pub loop_world: Option<LoopWorld>,
     /// The map scale measured against the IMU ran away (`[scale_observer] fault_min_scale` /
     /// `fault_max_scale`): the pose is not to be flown on (MAVLink quality −1) until an estimate
     /// within the band comes.
@@ -664,6 +670,7 @@ impl Odometry {
                 let c = link.publish(self.published_world, &f.result.state.nav.p_world_m);
                 if f.valid {
                     f.result.state = f.result.state.moved_by_world(&c);
+                    f.loop_world = Some(link.world(self.published_world, c));
                 }
             }
             f.loop_corrections = link.resets;
@@ -745,6 +752,7 @@ impl Odometry {
                     valid: false,
                     resets: self.stats.resets,
                     loop_corrections: 0,
+                    loop_world: None,
                     scale_fault: false,
                     speed_fault: false,
                     omega_body_rad_s: Vector3::zeros(),
@@ -1067,6 +1075,7 @@ impl Odometry {
             valid: true,
             resets: self.stats.resets,
             loop_corrections: 0,
+            loop_world: None,
             scale_fault: false,
             speed_fault: false,
             omega_body_rad_s: Vector3::zeros(),
@@ -1079,6 +1088,7 @@ impl Odometry {
         self.record_gyro_alignment();
         if let Some(link) = &mut self.loop_closer {
             self.stats.loop_closures = link.closures().to_vec();
+            self.stats.loop_hindsight = Some(link.hindsight());
             let t_cam_body = self.rig.t_body_cam.inverse();
             self.stats.loop_keyframe_poses = (link.keyframe_poses().into_iter())
                 .map(|(t, t_world_cam)| StampedPose {

@@ -150,6 +150,10 @@ pub struct OdometryStats {
     /// hindsight, every loop applied to every keyframe; what was published is each frame's pose
     /// as it was then).
     pub loop_keyframe_poses: Vec<StampedPose>,
+    /// Every keyframe's correction as the loop closer's graph gave it at the end: with each
+    /// frame's [`super::OdometryFrame::loop_world`], the published poses in hindsight
+    /// (`OUT/trajectory_hindsight.tum`); `None` without loop closure.
+    pub loop_hindsight: Option<super::HindsightCorrections>,
     /// Latency of each new keyframe in flight, frames from the frame that started it: to its
     /// first map from the mapper, and to its installation for tracking (which also waits for the
     /// frames its adjustment needs, and for the adjustment). Offline the first is `[bootstrap]

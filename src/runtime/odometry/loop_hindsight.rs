@@ -1,0 +1,104 @@
+//! The published poses in hindsight: each frame's pose moved from the loop correction it was
+//! published with to the one the loop closer's graph gives its world at the end — the published
+//! trajectory as it would have been had every loop been known from the first frame
+//! (`OUT/trajectory_hindsight.tum`, `report.json` `hindsight_ate_m`). A diagnostic, not a
+//! pose anyone can fly on: its gap to the published poses' ATE is the part of the error that
+//! comes from correcting causally (a loop closed at 80 s moves the graph's keyframes of 60 s, but
+//! the poses published at 60 s are gone).
+
+use nalgebra::Isometry3;
+use std::collections::HashMap;
+
+/// The world a frame's published pose was corrected in
+/// ([`super::OdometryFrame::loop_world`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LoopWorld {
+    /// The keyframe whose correction was applied: the one tracked (after a return to a stored
+    /// keyframe, that one), else the newest handed to the loop closer; `None` before the first.
+    pub keyframe: Option<u32>,
+    /// The correction applied: the published pose is `correction · ` the odometry's pose.
+    pub correction: Isometry3<f64>,
+}
+
+/// Every keyframe's correction as the loop closer's graph gives it at the end
+/// ([`super::OdometryStats::loop_hindsight`]).
+#[derive(Clone, Debug, Default)]
+pub struct HindsightCorrections {
+    /// Each keyframe handed to the closer: its correction (one the closer never took in: its
+    /// nearest host's, as it was published).
+    pub(super) by_keyframe: HashMap<u32, Isometry3<f64>>,
+    /// The first keyframe's: the world of the frames published before it.
+    pub(super) first: Isometry3<f64>,
+    /// The newest keyframe's: for a keyframe the closer did not keep (`[loop_closure]
+    /// max_keyframes`), as it was published.
+    pub(super) newest: Isometry3<f64>,
+}
+
+impl HindsightCorrections {
+    /// The correction at the end of the world of `keyframe` (`None`: before the first keyframe).
+    pub fn correction(&self, keyframe: Option<u32>) -> Isometry3<f64> {
+        match keyframe {
+            None => self.first,
+            Some(k) => self.by_keyframe.get(&k).copied().unwrap_or(self.newest),
+        }
+    }
+
+    /// A published body pose `t_world_body`, corrected in `world`, moved to the correction of
+    /// that world at the end.
+    pub fn moved(&self, world: &LoopWorld, t_world_body: &Isometry3<f64>) -> Isometry3<f64> {
+        self.correction(world.keyframe) * world.correction.inverse() * t_world_body
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn yawed(yaw_rad: f64, x_m: f64) -> Isometry3<f64> {
+        Isometry3::new(Vector3::new(x_m, 0.3, -0.1), Vector3::z() * yaw_rad)
+    }
+
+    fn close(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+        (a.to_homogeneous() - b.to_homogeneous()).norm() < 1e-12
+    }
+
+    /// A pose published with one correction is placed as the end's correction of its world
+    /// places the odometry's pose; before the first keyframe that is the first keyframe's world,
+    /// and a keyframe the closer never placed takes the newest keyframe's.
+    #[test]
+    fn a_published_pose_is_moved_from_its_correction_then_to_its_worlds_at_the_end() {
+        let (c1, c2, first, newest) = (
+            yawed(0.1, 0.5),
+            yawed(-0.05, 0.2),
+            yawed(0.01, 0.0),
+            yawed(0.2, -0.4),
+        );
+        let h = HindsightCorrections {
+            by_keyframe: HashMap::from([(1, c1), (2, c2)]),
+            first,
+            newest,
+        };
+        let odometry = yawed(0.7, 3.0);
+        let then = yawed(0.03, 0.1);
+        let published = then * odometry;
+        for (keyframe, end) in [
+            (Some(1), c1),
+            (Some(2), c2),
+            (None, first),
+            (Some(9), newest),
+        ] {
+            let world = LoopWorld {
+                keyframe,
+                correction: then,
+            };
+            assert!(close(&h.moved(&world, &published), &(end * odometry)));
+        }
+        // Published with the end's correction already: unmoved.
+        let world = LoopWorld {
+            keyframe: Some(2),
+            correction: c2,
+        };
+        assert!(close(&h.moved(&world, &(c2 * odometry)), &(c2 * odometry)));
+    }
+}
