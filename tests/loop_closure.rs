@@ -3,6 +3,7 @@
 //! nothing.
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use std::collections::HashMap;
 use vidslam::camera::CameraModel;
 use vidslam::image::Image;
 use vidslam::loop_closure::closer::{LoopCloser, LoopClosureConfig};
@@ -378,4 +379,52 @@ fn a_keyframe_closes_to_several_old_maps_when_allowed() {
     assert!(second_m < 0.03, "{second_m}");
     assert!(err.translation.vector.norm() < 0.02, "{err}");
     assert!(err.rotation.angle() < 0.3f64.to_radians(), "{err}");
+}
+
+/// `follow_window_poses`: keyframes the odometry moves after they joined the graph (the keyframe
+/// window's solve) move in it with their corrections kept — the published pose does not jump —,
+/// a keyframe the closer does not hold is ignored, and the graph takes later keyframes and loops
+/// as before.
+#[test]
+fn keyframes_moved_by_the_window_keep_their_corrections() {
+    let room = Room::new();
+    let truth_3 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
+    let (image_3, _) = room.view(3, &truth_3);
+    let cfg = LoopClosureConfig {
+        follow_window_poses: true,
+        ..config()
+    };
+    let (mut closer, odometry_3, closed_to) =
+        fly_with(&room, &image_3, &truth_3, cfg, 1.0, |c, m| {
+            c.attach_map(0, m)
+        });
+    assert_eq!(closed_to, Some(0));
+    let mut before = HashMap::new();
+    closer.corrections_into(&mut before);
+    assert!(
+        before[&3].translation.vector.norm() > 0.05,
+        "the loop corrected"
+    );
+    let nudge = Isometry3::new(Vector3::new(0.03, -0.02, 0.01), Vector3::z() * 0.01);
+    let moved_3 = odometry_3 * nudge;
+    closer.move_keyframes(&[(2, drift() * nudge), (3, moved_3), (99, nudge)]);
+    let mut after = HashMap::new();
+    closer.corrections_into(&mut after);
+    assert_eq!(after.len(), before.len());
+    for (id, c) in &before {
+        let d = c.inverse() * after[id];
+        assert!(
+            d.translation.vector.norm() < 1e-9 && d.rotation.angle() < 1e-12,
+            "keyframe {id}: {d}"
+        );
+    }
+    let host = fly_away(&room, &mut closer, (3, moved_3));
+    assert_eq!(host.0, 5);
+    let mut last = HashMap::new();
+    closer.corrections_into(&mut last);
+    assert_eq!(last.len(), 6);
+    assert!(
+        last.values()
+            .all(|c| c.translation.vector.iter().all(|v| v.is_finite()))
+    );
 }

@@ -1346,10 +1346,11 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
         }
     }
     assert!(moved > 0, "no published pose was corrected");
-    // In hindsight (`trajectory_hindsight.tum`) every frame is the odometry's pose moved by its
-    // world's correction at the end: the plain replay's pose (the odometry is untouched) times
-    // that correction. The last frame was published with it already; frames published before
-    // the loops closed move.
+    // In hindsight (`trajectory_hindsight.tum`) every frame keeps its pose relative to its
+    // keyframe as the odometry had the two when it was published — the plain replay's pose (the
+    // odometry is untouched) against the keyframe's odometry pose then — and its keyframe is
+    // where the graph places it at the end. The last frame was published so already; frames
+    // published before the loops closed move.
     let in_hindsight = hindsight_trajectory(&closed).expect("a trajectory in hindsight");
     let end = closed.odometry.loop_hindsight.as_ref().unwrap();
     assert_eq!(in_hindsight.len(), closed.frames.len());
@@ -1359,7 +1360,20 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
     {
         let world = world.expect("every valid frame corrected");
         assert_eq!(h.t, b.t);
-        let expected = end.correction(world.keyframe) * pose_of(&a.state);
+        let expected = match (world.keyframe, world.keyframe_pose) {
+            (Some(keyframe), Some(kf_then)) => {
+                let kf_odometry_then = world.correction.inverse() * kf_then;
+                let kf_now = end
+                    .keyframe_pose(keyframe)
+                    .expect("a keyframe in the graph");
+                kf_now * kf_odometry_then.inverse() * pose_of(&a.state)
+            }
+            // On the pad before the first keyframe: in the first keyframe's world.
+            _ => {
+                assert!(world.keyframe.is_none() && world.keyframe_pose.is_none());
+                end.correction(None) * pose_of(&a.state)
+            }
+        };
         let d = expected.inverse() * h.t_world_body;
         assert!(
             d.translation.vector.norm() < 1e-6 && d.rotation.angle() < 1e-6,

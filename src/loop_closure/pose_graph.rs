@@ -365,7 +365,49 @@ impl PoseGraph {
         }
     }
 
-    /// The odometry pose node i was added with. Panics if `i >= len()`.
+    /// Node i's odometry pose measured again as `t_world_body` (the odometry refined it after
+    /// it was added): its estimate moves with it, keeping its [`correction`](Self::correction),
+    /// and its roll and pitch become the new pose's. The edges are left as measured
+    /// ([`remeasure_odometry_edges`](Self::remeasure_odometry_edges)). Ignored if the pose is not
+    /// finite. Panics if `i >= len()`.
+    pub fn move_odometry(&mut self, i: usize, t_world_body: &Isometry3<f64>) {
+        let finite = (t_world_body.translation.vector.iter())
+            .chain(t_world_body.rotation.coords.iter())
+            .all(|x| x.is_finite());
+        if !finite {
+            return;
+        }
+        let c = self.correction(i);
+        let r = t_world_body.rotation.to_rotation_matrix().into_inner();
+        let yaw_odometry_rad = yaw_of(&r);
+        let q_rp = rz(-yaw_odometry_rad) * t_world_body.rotation;
+        self.nodes[i] = Node {
+            odometry: *t_world_body,
+            yaw_odometry_rad,
+            q_rp,
+            r_rp: q_rp.to_rotation_matrix().into_inner(),
+        };
+        let moved = c * t_world_body;
+        self.yaw_rad[i] = wrap_angle(yaw_of(&moved.rotation.to_rotation_matrix().into_inner()));
+        self.position_m[i] = moved.translation.vector;
+    }
+
+    /// Every odometry edge between two of the nodes `moved` measured again from their odometry
+    /// poses ([`move_odometry`](Self::move_odometry)); its noise is kept. Loop edges are left.
+    pub fn remeasure_odometry_edges(&mut self, moved: &[usize]) {
+        let nodes = &self.nodes;
+        for e in (self.edges.iter_mut()).filter(|e| {
+            e.kind == EdgeKind::Odometry && moved.contains(&e.i) && moved.contains(&e.j)
+        }) {
+            let t_i_j = nodes[e.i].odometry.inv_mul(&nodes[e.j].odometry);
+            let r_i_j = t_i_j.rotation.to_rotation_matrix().into_inner();
+            e.yaw_rad = yaw_of(&(nodes[e.i].r_rp * r_i_j));
+            e.position_m = t_i_j.translation.vector;
+        }
+    }
+
+    /// The odometry pose of node i: as added, or as last moved
+    /// ([`move_odometry`](Self::move_odometry)). Panics if `i >= len()`.
     pub fn odometry_pose(&self, i: usize) -> Isometry3<f64> {
         self.nodes[i].odometry
     }
@@ -1268,5 +1310,79 @@ mod tests {
             assert_eq!(summary.rejected_loop_edges, 0, "{summary:?}");
             assert!(after < before / 5.0, "{before} -> {after}");
         }
+    }
+
+    /// Nodes moved by the odometry keep their corrections, and the odometry edges among them are
+    /// measured from the new poses: a chain moved as a whole stays at its odometry (no cost),
+    /// and an edge to a node not moved is left as it was.
+    #[test]
+    fn moved_nodes_keep_their_corrections_and_their_edges_follow() {
+        let (truth, odometry) = loop_trajectory(12, 2);
+        let n = odometry.len();
+        let refined: Vec<Isometry3<f64>> = (odometry.iter().enumerate())
+            .map(|(k, t)| {
+                let k = k as f64;
+                let nudge = ypr(
+                    0.01 * k.sin(),
+                    0.002 * k.cos(),
+                    -0.003,
+                    Vector3::new(0.02 * k.cos(), -0.01, 0.005 * k),
+                );
+                t * nudge
+            })
+            .collect();
+        // Every node moved: a graph without loops sits at its new odometry.
+        let mut g = chain(&odometry);
+        for (k, t) in refined.iter().enumerate() {
+            g.move_odometry(k, t);
+        }
+        g.remeasure_odometry_edges(&(0..n).collect::<Vec<_>>());
+        assert!(g.cost(&g.yaw_rad, &g.position_m, 1.0) < 1e-20);
+        for (k, t) in refined.iter().enumerate() {
+            assert!((g.pose(k).translation.vector - t.translation.vector).norm() < 1e-12);
+            assert!(yaw_error(&g.pose(k), t) < 1e-12);
+            assert!((roll_pitch(&g.pose(k)) - roll_pitch(t)).norm() < 1e-12);
+        }
+        // After a loop, some nodes moved: their corrections are kept, the edges among them
+        // follow the new poses, the edges to the others are left.
+        let mut g = chain(&odometry);
+        g.add_loop_edge(n - 1, 0, &truth[n - 1].inv_mul(&truth[0]), NOISE)
+            .unwrap();
+        g.optimize(20);
+        let before: Vec<_> = (0..n).map(|k| g.correction(k)).collect();
+        let edges_before = g.edges.clone();
+        let moved = [14, 15, 16];
+        for &k in &moved {
+            g.move_odometry(k, &refined[k]);
+        }
+        g.remeasure_odometry_edges(&moved);
+        for k in 0..n {
+            let d = before[k].inverse() * g.correction(k);
+            assert!(
+                d.translation.vector.norm() < 1e-9 && d.rotation.angle() < 1e-12,
+                "{k}"
+            );
+        }
+        for (e, old) in g.edges.iter().zip(&edges_before) {
+            let inside = moved.contains(&e.i) && moved.contains(&e.j);
+            if inside {
+                let t_i_j = refined[e.i].inv_mul(&refined[e.j]);
+                assert!((e.position_m - t_i_j.translation.vector).norm() < 1e-12);
+                assert!(
+                    (e.position_m - old.position_m).norm() > 1e-4,
+                    "{} {}",
+                    e.i,
+                    e.j
+                );
+            } else {
+                assert_eq!((e.yaw_rad, e.position_m), (old.yaw_rad, old.position_m));
+            }
+        }
+        // Not finite: ignored.
+        let mut nan = refined[3];
+        nan.translation.vector.x = f64::NAN;
+        let pose = g.pose(3);
+        g.move_odometry(3, &nan);
+        assert_eq!(g.pose(3), pose);
     }
 }

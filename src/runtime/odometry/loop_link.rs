@@ -50,6 +50,7 @@ enum LoopJob {
         id: u32,
         depth_factor: f64,
     },
+    MoveKeyframes(Vec<(u32, Isometry3<f64>)>),
 }
 
 /// What the thread reports after each job.
@@ -74,6 +75,7 @@ fn run(closer: &mut LoopCloser, job: LoopJob) {
         LoopJob::Map { id, map } => closer.attach_map(id, &map),
         LoopJob::OdometryNoiseScale(s) => closer.set_odometry_noise_scale(s),
         LoopJob::ScaleMap { id, depth_factor } => closer.scale_map(id, depth_factor),
+        LoopJob::MoveKeyframes(poses) => closer.move_keyframes(&poses),
     }
 }
 
@@ -192,6 +194,17 @@ impl LoopLink {
         self.submit(LoopJob::ScaleMap { id, depth_factor });
     }
 
+    /// Keyframes moved by the keyframe window (`[loop_closure] follow_window_poses`): each
+    /// `(id, t_world_cam)` moves in the graph with its correction kept.
+    pub(super) fn move_keyframes(&mut self, poses: Vec<(u32, Isometry3<f64>)>) {
+        for (id, t_world_cam) in &poses {
+            if let Some(s) = self.started.get_mut(id) {
+                s.t_world_cam = *t_world_cam;
+            }
+        }
+        self.submit(LoopJob::MoveKeyframes(poses));
+    }
+
     fn submit(&mut self, job: LoopJob) {
         match &mut self.runner {
             Runner::Inline(closer) => {
@@ -297,20 +310,25 @@ impl LoopLink {
     /// The world of a pose published with correction `c` while keyframe `tracked` is tracked
     /// (none tracked: the newest keyframe's, whose correction [`Self::correction_for`] gives).
     pub(super) fn world(&self, tracked: Option<u32>, c: Isometry3<f64>) -> LoopWorld {
+        let keyframe = tracked.or(self.newest);
         LoopWorld {
-            keyframe: tracked.or(self.newest),
+            keyframe,
             correction: c,
+            keyframe_pose: (keyframe.and_then(|k| self.started.get(&k))).map(|s| c * s.t_world_cam),
         }
     }
 
-    /// Every keyframe's correction as the graph gives it now, the end of a replay (real time: as
-    /// of the closer's last report): the published poses in hindsight.
+    /// Every keyframe's correction and pose as the graph gives them now, the end of a replay
+    /// (real time: as of the closer's last report): the published poses in hindsight.
     pub(super) fn hindsight(&mut self) -> HindsightCorrections {
         self.receive();
         let first = (self.started.iter()).min_by_key(|(_, s)| s.t);
         HindsightCorrections {
-            by_keyframe: (self.started.keys())
-                .map(|&id| (id, self.resolve(Some(id))))
+            by_keyframe: (self.started.iter())
+                .map(|(&id, s)| {
+                    let c = self.resolve(Some(id));
+                    (id, (c, c * s.t_world_cam))
+                })
                 .collect(),
             first: first.map_or(self.correction, |(&id, _)| self.resolve(Some(id))),
             newest: self.correction,

@@ -213,6 +213,16 @@ impl Odometry {
         for (id, x) in self.window.states() {
             self.store.set_pose(id, pose_of(x) * self.rig.t_body_cam);
         }
+        if self.cfg.loop_closure.follow_window_poses
+            && let Some(link) = &mut self.loop_closer
+        {
+            let t_body_cam = self.rig.t_body_cam;
+            link.move_keyframes(
+                (self.window.states())
+                    .map(|(id, x)| (id, pose_of(x) * t_body_cam))
+                    .collect(),
+            );
+        }
         result.state = x_new;
         Some(correction)
     }
