@@ -368,8 +368,9 @@ impl PoseGraph {
     /// Node i's odometry pose measured again as `t_world_body` (the odometry refined it after
     /// it was added): its estimate moves with it, keeping its [`correction`](Self::correction),
     /// and its roll and pitch become the new pose's. The edges are left as measured
-    /// ([`remeasure_odometry_edges`](Self::remeasure_odometry_edges)). Ignored if the pose is not
-    /// finite. Panics if `i >= len()`.
+    /// ([`remeasure_odometry_edges`](Self::remeasure_odometry_edges); a loop edge from node i
+    /// keeps the relative yaw it was given with i's roll and pitch then — the window moves those
+    /// by milliradians). Ignored if the pose is not finite. Panics if `i >= len()`.
     pub fn move_odometry(&mut self, i: usize, t_world_body: &Isometry3<f64>) {
         let finite = (t_world_body.translation.vector.iter())
             .chain(t_world_body.rotation.coords.iter())
@@ -1356,8 +1357,8 @@ mod tests {
             g.move_odometry(k, &refined[k]);
         }
         g.remeasure_odometry_edges(&moved);
-        for k in 0..n {
-            let d = before[k].inverse() * g.correction(k);
+        for (k, c) in before.iter().enumerate() {
+            let d = c.inverse() * g.correction(k);
             assert!(
                 d.translation.vector.norm() < 1e-9 && d.rotation.angle() < 1e-12,
                 "{k}"

@@ -35,11 +35,12 @@ pub fn trajectory(out: &ReplayOutput) -> Trajectory {
     )
 }
 
-/// The published trajectory in hindsight (`trajectory_hindsight.tum`): each frame's pose moved
-/// from the loop correction it was published with to its world's correction at the end
-/// ([`crate::runtime::odometry::HindsightCorrections::moved`]); a frame published without one
-/// stays as it was. `None` without loop closure, or when no frame was corrected (`[loop_closure]
-/// correct_published_pose = false`).
+/// The published trajectory in hindsight (`trajectory_hindsight.tum`): each frame kept at its
+/// pose relative to the keyframe whose world it was published in, that keyframe where the loop
+/// closer's graph places it at the end
+/// ([`crate::runtime::odometry::HindsightCorrections::moved`]); a frame published without a
+/// correction stays as it was. `None` without loop closure, or when no frame was corrected
+/// (`[loop_closure] correct_published_pose = false`).
 pub fn hindsight_trajectory(out: &ReplayOutput) -> Option<Trajectory> {
     let h = out.odometry.loop_hindsight.as_ref()?;
     let corrected =

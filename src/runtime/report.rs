@@ -378,7 +378,8 @@ pub struct ReplayReport {
     #[serde(default)]
     pub graph_keyframe_ate_m: Option<f64>,
     /// ATE RMSE (SE3 alignment) of the published frames in hindsight
-    /// (`trajectory_hindsight.tum`: each moved to its world's loop correction at the end), m —
+    /// (`trajectory_hindsight.tum`: each at its pose relative to its keyframe, the keyframe where
+    /// the loop closer's graph places it at the end), m —
     /// what `ate_rmse_m` would be had every loop been known from the first frame; absent without
     /// loop closure or ground truth.
     #[serde(default)]

@@ -1,6 +1,7 @@
-//! The published poses in hindsight: each frame's pose moved from the loop correction it was
-//! published with to the one the loop closer's graph gives its world at the end — the published
-//! trajectory as it would have been had every loop been known from the first frame
+//! The published poses in hindsight: each frame keeps its pose relative to the keyframe whose
+//! world it was published in, as the odometry and the loop correction had the two then, and is
+//! put where the loop closer's graph places that keyframe at the end — the published trajectory
+//! as it would have been had every loop been known from the first frame
 //! (`OUT/trajectory_hindsight.tum`, `report.json` `hindsight_ate_m`). A diagnostic, not a
 //! pose anyone can fly on: its gap to the published poses' ATE is the part of the error that
 //! comes from correcting causally (a loop closed at 80 s moves the graph's keyframes of 60 s, but
@@ -25,7 +26,7 @@ pub struct LoopWorld {
     pub keyframe_pose: Option<Isometry3<f64>>,
 }
 
-/// Every keyframe's correction as the loop closer's graph gives it at the end
+/// Every keyframe's correction and camera pose as the loop closer's graph gives them at the end
 /// ([`super::OdometryStats::loop_hindsight`]).
 #[derive(Clone, Debug, Default)]
 pub struct HindsightCorrections {
