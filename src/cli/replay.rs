@@ -28,8 +28,9 @@ const IMPLIED_BIAS_WINDOW_S: f64 = 2.0;
 /// gravity-aligned world, every frame), OUT/frames.csv (per-frame diagnostics), OUT/report.json (frame counts, tracking time, ATE and
 /// scale error against ground truth with SE3 alignment), OUT/trajectory.png, with the
 /// semidense mapper OUT/semidense.ply and, with loop closure, OUT/keyframes_graph.tum and
-/// OUT/trajectory_hindsight.tum (the keyframes and the published frames moved to the loop
-/// corrections at the end: diagnostics of what causality costs, not poses to fly on).
+/// OUT/trajectory_hindsight.tum (the keyframes, and the published frames relative to them,
+/// where the loop closer's graph places the keyframes at the end: diagnostics of what
+/// causality costs, not poses to fly on).
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
     /// The dataset folder (containing mav0/).

@@ -85,6 +85,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::f64::consts::{PI, TAU};
 
+use crate::geometry::se3;
 use nalgebra::{Isometry3, Matrix3, Matrix4, Translation3, UnitQuaternion, Vector3, Vector4};
 
 /// Default scale `c` of the Cauchy kernel on loop edges, in standard deviations of the whitened
@@ -162,6 +163,28 @@ struct Node {
     r_rp: Matrix3<f64>,
 }
 
+impl Node {
+    /// A node at the odometry pose `t_world_body`, split into its yaw and its roll and pitch.
+    fn new(t_world_body: Isometry3<f64>) -> Node {
+        let r = t_world_body.rotation.to_rotation_matrix().into_inner();
+        let yaw_odometry_rad = yaw_of(&r);
+        let q_rp = rz(-yaw_odometry_rad) * t_world_body.rotation;
+        Node {
+            odometry: t_world_body,
+            yaw_odometry_rad,
+            q_rp,
+            r_rp: q_rp.to_rotation_matrix().into_inner(),
+        }
+    }
+
+    /// The measurement `(ψ̂_ij, p̂_ij)` of an edge from this node (i) given the relative pose
+    /// `t_i_j` (see the module documentation).
+    fn measurement(&self, t_i_j: &Isometry3<f64>) -> (f64, Vector3<f64>) {
+        let r_i_j = t_i_j.rotation.to_rotation_matrix().into_inner();
+        (yaw_of(&(self.r_rp * r_i_j)), t_i_j.translation.vector)
+    }
+}
+
 #[derive(Clone, Debug)]
 struct Edge {
     i: usize,
@@ -225,15 +248,8 @@ impl PoseGraph {
     /// [`correction`](Self::correction) (the odometry pose itself for the first node and before
     /// any loop was optimised), so that a graph already optimised stays consistent.
     pub fn add_node(&mut self, t_world_body: Isometry3<f64>) -> usize {
-        let r = t_world_body.rotation.to_rotation_matrix().into_inner();
-        let yaw_odometry_rad = yaw_of(&r);
-        let q_rp = rz(-yaw_odometry_rad) * t_world_body.rotation;
-        let node = Node {
-            odometry: t_world_body,
-            yaw_odometry_rad,
-            q_rp,
-            r_rp: q_rp.to_rotation_matrix().into_inner(),
-        };
+        let node = Node::new(t_world_body);
+        let yaw_odometry_rad = node.yaw_odometry_rad;
         let (yaw, position) = match self.nodes.len().checked_sub(1) {
             None => (yaw_odometry_rad, t_world_body.translation.vector),
             Some(last) => {
@@ -372,22 +388,11 @@ impl PoseGraph {
     /// keeps the relative yaw it was given with i's roll and pitch then — the window moves those
     /// by milliradians). Ignored if the pose is not finite. Panics if `i >= len()`.
     pub fn move_odometry(&mut self, i: usize, t_world_body: &Isometry3<f64>) {
-        let finite = (t_world_body.translation.vector.iter())
-            .chain(t_world_body.rotation.coords.iter())
-            .all(|x| x.is_finite());
-        if !finite {
+        if !se3::is_finite(t_world_body) {
             return;
         }
         let c = self.correction(i);
-        let r = t_world_body.rotation.to_rotation_matrix().into_inner();
-        let yaw_odometry_rad = yaw_of(&r);
-        let q_rp = rz(-yaw_odometry_rad) * t_world_body.rotation;
-        self.nodes[i] = Node {
-            odometry: *t_world_body,
-            yaw_odometry_rad,
-            q_rp,
-            r_rp: q_rp.to_rotation_matrix().into_inner(),
-        };
+        self.nodes[i] = Node::new(*t_world_body);
         let moved = c * t_world_body;
         self.yaw_rad[i] = wrap_angle(yaw_of(&moved.rotation.to_rotation_matrix().into_inner()));
         self.position_m[i] = moved.translation.vector;
@@ -401,9 +406,7 @@ impl PoseGraph {
             e.kind == EdgeKind::Odometry && moved.contains(&e.i) && moved.contains(&e.j)
         }) {
             let t_i_j = nodes[e.i].odometry.inv_mul(&nodes[e.j].odometry);
-            let r_i_j = t_i_j.rotation.to_rotation_matrix().into_inner();
-            e.yaw_rad = yaw_of(&(nodes[e.i].r_rp * r_i_j));
-            e.position_m = t_i_j.translation.vector;
+            (e.yaw_rad, e.position_m) = nodes[e.i].measurement(&t_i_j);
         }
     }
 
@@ -513,11 +516,12 @@ impl PoseGraph {
         if !(r_i_j.iter().all(|x| x.is_finite()) && position_m.iter().all(|x| x.is_finite())) {
             return Err(PoseGraphError::NonFiniteMeasurement);
         }
+        let (yaw_rad, position_m) = self.nodes[i].measurement(t_i_j);
         self.edges.push(Edge {
             i,
             j,
             kind,
-            yaw_rad: yaw_of(&(self.nodes[i].r_rp * r_i_j)),
+            yaw_rad,
             position_m,
             inv_yaw_std: 1.0 / noise.yaw_std_rad,
             inv_position_std: 1.0 / noise.position_std_m,

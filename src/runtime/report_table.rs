@@ -273,9 +273,9 @@ impl ReplayReport {
                 row(
                     "frames in hindsight",
                     format!(
-                        "ATE RMSE {:.4} m of the published frames moved to the loop corrections \
-                         at the end (trajectory_hindsight.tum; not flyable: causality costs the \
-                         rest)",
+                        "ATE RMSE {:.4} m of the published frames, each kept relative to its \
+                         keyframe, the keyframe where the graph ends (trajectory_hindsight.tum; \
+                         not flyable: causality costs the rest)",
                         ate_m
                     ),
                 );
