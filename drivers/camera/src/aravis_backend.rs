@@ -24,7 +24,11 @@
 //! mode silence is legitimate, so only the heartbeat counts). `next_frame`
 //! then returns [`CameraError::Lost`]; later calls reopen the device by name (at most one attempt
 //! per 500 ms), re-apply the configuration and restart acquisition, returning
-//! [`CameraError::Reconnecting`] until that works. The device clock model restarts too.
+//! [`CameraError::Reconnecting`] until that works. The device clock model restarts too. Each
+//! connection has its own `control-lost` flag, and the lost device is released on a helper
+//! thread that waits out its heartbeat thread's signal first (`release_lost_device`), so a late
+//! signal neither marks the new connection lost nor finalises the old device on the heartbeat
+//! thread (which would abort the process).
 //!
 //! # Time
 //! Host receive time is Aravis's buffer system timestamp (`CLOCK_REALTIME`, taken by the stream
@@ -38,7 +42,7 @@ use crate::frame_counter::FrameCounter;
 use crate::host_clock::realtime_to_monotonic_ns;
 use crate::pool::FramePool;
 use crate::timing::FrameTimer;
-use aravis::glib::prelude::Cast;
+use aravis::glib::prelude::{Cast, ObjectExt};
 use aravis::prelude::*;
 use std::ffi::{CStr, CString};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -50,6 +54,10 @@ static ARAVIS_GLOBAL: Mutex<()> = Mutex::new(());
 
 const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
 const EXPOSURE_POLL_INTERVAL: Duration = Duration::from_secs(1);
+/// How long the release of a lost GigE device waits for its heartbeat thread's `control-lost`
+/// (see [`release_lost_device`]): its 1 s period, 5 s retry window and a register read's 2.5 s
+/// of retries in libaravis-0.8, with margin.
+const LOST_DEVICE_HEARTBEAT_WAIT: Duration = Duration::from_secs(15);
 
 /// One device as Aravis enumerates it.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -135,7 +143,9 @@ fn gerr(device: &str, operation: &str, e: impl std::fmt::Display) -> CameraError
     }
 }
 
-fn open_camera(name: &str, flag: &Arc<AtomicBool>) -> Result<aravis::Camera, CameraError> {
+/// Opens the camera and connects its `control-lost` signal to a flag of this connection alone:
+/// a device from an earlier connection, still being released, cannot mark this one lost.
+fn open_camera(name: &str) -> Result<(aravis::Camera, Arc<AtomicBool>), CameraError> {
     if name.starts_with("Fake") {
         enable_fake_interface();
     }
@@ -147,19 +157,56 @@ fn open_camera(name: &str, flag: &Arc<AtomicBool>) -> Result<aravis::Camera, Cam
         device: name.to_string(),
         reason: e.to_string(),
     })?;
+    let control_lost = Arc::new(AtomicBool::new(false));
     if let Some(device) = camera.device() {
-        let flag = Arc::clone(flag);
+        let flag = Arc::clone(&control_lost);
         device.connect_control_lost(move |_| flag.store(true, Ordering::SeqCst));
     }
-    Ok(camera)
+    Ok((camera, control_lost))
+}
+
+/// Releases the device of a lost connection (run on a helper thread: releasing a dead GigE
+/// device waits for GVCP retries, seconds) without letting Aravis's heartbeat thread finalise it.
+///
+/// A GigE device's heartbeat thread emits `control-lost` when its read of the control-channel
+/// privilege register no longer shows our control (a camera that restarted: the read succeeds
+/// after the heartbeat period, 1 s, its 5 s retry window and a read's own retries, 2.5 s, in
+/// libaravis-0.8), and the emission holds a reference to the device. Were ours all released
+/// meanwhile, that thread would drop the last one, finalise the device and join itself: GLib
+/// aborts the process (`g_thread_join`: "Resource deadlock avoided"; the pattern of Aravis
+/// issue #50, and what killed one CI run of `aravis_fake_gv`). The heartbeat emits at most once
+/// per device (it then stops claiming control), so this keeps one device reference, drops the
+/// stream and the camera, waits for the emission to have happened (`control_lost`) and returned
+/// (the reference count back to ours alone), and only then drops the device, whose finalisation
+/// (stopping and joining the heartbeat thread) then runs here. Where no emission comes within
+/// [`LOST_DEVICE_HEARTBEAT_WAIT`] (the camera answered the heartbeat again), the device is
+/// dropped once nothing else holds it.
+fn release_lost_device(
+    stream: Option<aravis::Stream>,
+    camera: Option<aravis::Camera>,
+    control_lost: Arc<AtomicBool>,
+) {
+    let device = camera.as_ref().and_then(|c| c.device());
+    drop(stream);
+    drop(camera);
+    let Some(device) = device else {
+        return;
+    };
+    let start = Instant::now();
+    while !control_lost.load(Ordering::SeqCst) && start.elapsed() < LOST_DEVICE_HEARTBEAT_WAIT {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    while device.ref_count() > 1 && start.elapsed() < LOST_DEVICE_HEARTBEAT_WAIT * 2 {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    drop(device);
 }
 
 impl AravisCamera {
     /// Opens a device by its Aravis id (`arv-tool-0.8` lists them), its IP address, or `Fake_1`
     /// (enables the in-process fake interface).
     pub fn open(name: &str) -> Result<Self, CameraError> {
-        let control_lost = Arc::new(AtomicBool::new(false));
-        let camera = open_camera(name, &control_lost)?;
+        let (camera, control_lost) = open_camera(name)?;
         let info = describe(name, &camera);
         Ok(AravisCamera {
             name: name.to_string(),
@@ -401,10 +448,9 @@ impl AravisCamera {
     fn declare_lost(&mut self, reason: String) -> CameraError {
         self.lost = true;
         self.stats.lost += 1;
-        // Releasing a dead GigE device sends GVCP writes that each wait for their retries
-        // (seconds): let a helper thread do it so `next_frame` keeps its timeout.
-        let stale = (self.stream.take(), self.camera.take());
-        std::thread::spawn(move || drop(stale));
+        let (stream, camera) = (self.stream.take(), self.camera.take());
+        let control_lost = Arc::clone(&self.control_lost);
+        std::thread::spawn(move || release_lost_device(stream, camera, control_lost));
         CameraError::Lost {
             device: self.name.clone(),
             reason,
@@ -432,10 +478,10 @@ impl AravisCamera {
             attempt,
             reason: e.to_string(),
         };
-        self.control_lost.store(false, Ordering::SeqCst);
-        let camera =
-            open_camera(&self.name, &self.control_lost).map_err(|e| reconnecting(&self.name, e))?;
+        let (camera, control_lost) =
+            open_camera(&self.name).map_err(|e| reconnecting(&self.name, e))?;
         self.camera = Some(camera);
+        self.control_lost = control_lost;
         let config = self
             .config
             .clone()

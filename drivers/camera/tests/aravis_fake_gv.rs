@@ -277,6 +277,23 @@ fn fake_gige_camera_over_udp_streams_survives_a_kill_and_reconnects() {
         stats.lost >= 1 && stats.reconnects == stats.lost,
         "{stats:?}"
     );
+
+    // Stream on past the old device's heartbeat window (its `control-lost` comes at most ~8.5 s
+    // after the kill in libaravis-0.8, while the driver still holds that device to release it
+    // safely): the late signal must not mark the new connection lost, and the old device's
+    // release must not take the process down.
+    let streaming_since = Instant::now();
+    while killed_at.elapsed() < Duration::from_secs(12) {
+        cam.next_frame(Duration::from_secs(3))
+            .unwrap_or_else(|e| panic!("{:?} after the reconnect: {e}", streaming_since.elapsed()));
+    }
+    let after = cam.stats();
+    eprintln!("{:?} after the kill: {after:?}", killed_at.elapsed());
+    assert_eq!(
+        (after.lost, after.reconnects),
+        (stats.lost, stats.reconnects),
+        "the old device's late control-lost was taken for a loss of the new connection"
+    );
     cam.stop().unwrap();
 }
 
