@@ -35,6 +35,7 @@
 
 use super::envelope_cholesky::EnvelopeCholesky;
 use super::relative_pose::RelativePose;
+use super::zero_skipping_cholesky;
 use crate::geometry::log_so3;
 use crate::imu::imu_jacobian_j;
 use crate::imu::misalignment::{d_residual_d_misalignment, turned};
@@ -80,8 +81,10 @@ pub struct WindowConfig {
     pub max_iterations: usize,
     /// Factor each step's normal equations within their envelope
     /// ([`super::envelope_cholesky`]: ~10x fewer flops, window solve p50 4.0 → 1.9 ms on the
-    /// demo) instead of densely. The same solution up to rounding, but the closed loop grows
-    /// those last bits: S-V101 seeds 1–8 offline went from a median of 0.138 to 0.160 m, seed 8
+    /// demo) instead of in nalgebra's order. (Off, the default, [`super::zero_skipping_cholesky`]
+    /// gives nalgebra's factor and solution to the bit with its products by zero skipped: S-V101
+    /// seed 1's window solve p50 4.7 → 3.2 ms offline, session 85.) The envelope's is the same
+    /// solution up to rounding, but the closed loop grows those last bits: S-V101 seeds 1–8 offline went from a median of 0.138 to 0.160 m, seed 8
     /// ran away (1.38 m), while the demo's seeds 1–16 kept their distribution. Off until more
     /// seeds tell chaos from a cost (docs/odometry-log.md, *The keyframe window's factorisation
     /// within its envelope*).
@@ -656,7 +659,9 @@ impl KeyframeWindow {
             let dx = if self.cfg.envelope_factorisation {
                 EnvelopeCholesky::factor(&hd).map(|c| c.solve(&rhs_s))
             } else {
-                hd.cholesky().map(|c| c.solve(&rhs_s))
+                // nalgebra's factorisation and solve to the bit, without its products by zero.
+                zero_skipping_cholesky::factor(hd)
+                    .map(|l| zero_skipping_cholesky::solve(&l, &rhs_s))
             };
             let dx = match (dx, &basis) {
                 (Some(du), Some(q)) => Some(from_heading_basis(du, q)),

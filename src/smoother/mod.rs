@@ -7,6 +7,7 @@ pub mod keyframe_window;
 mod nearest;
 pub mod photometric_bundle;
 pub mod relative_pose;
+pub mod zero_skipping_cholesky;
 
 pub use keyframe_window::{KeyframeWindow, SolveSummary, WindowConfig, boxminus};
 pub use relative_pose::RelativePose;
