@@ -113,11 +113,11 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// A deterministic pseudo-random number in [−1, 1).
-    fn rnd(state: &mut u64) -> f64 {
+    pub(crate) fn rnd(state: &mut u64) -> f64 {
         *state = state
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
@@ -126,7 +126,7 @@ mod tests {
 
     /// The window's structure: `blocks` blocks of `b` unknowns, each coupled with the next, then
     /// `e` unknowns coupled with all; symmetric positive definite (J Jᵀ plus a diagonal).
-    fn chain_with_arrow(blocks: usize, b: usize, e: usize, seed: u64) -> DMatrix<f64> {
+    pub(crate) fn chain_with_arrow(blocks: usize, b: usize, e: usize, seed: u64) -> DMatrix<f64> {
         let n = blocks * b + e;
         let mut s = seed;
         let mut a = DMatrix::<f64>::zeros(n, n);

@@ -81,37 +81,8 @@ pub fn solve(l: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A deterministic pseudo-random value in [−1, 1).
-    fn noise(state: &mut u64) -> f64 {
-        *state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-    }
-
-    /// The keyframe window's shape: `blocks` blocks of `b` rows, each coupled to its neighbours,
-    /// and `tail` full rows last; made positive definite by a dominant diagonal.
-    fn chain(blocks: usize, b: usize, tail: usize, seed: u64) -> DMatrix<f64> {
-        let n = blocks * b + tail;
-        let mut s = seed;
-        let mut j = DMatrix::<f64>::zeros(n, n);
-        // A Jacobian-like J: each "factor" row touches two neighbouring blocks and the tail.
-        for r in 0..n {
-            let blk = (r / b).min(blocks.saturating_sub(2));
-            for c in blk * b..((blk + 2) * b).min(blocks * b) {
-                j[(r, c)] = noise(&mut s);
-            }
-            for c in blocks * b..n {
-                j[(r, c)] = 0.1 * noise(&mut s);
-            }
-        }
-        let mut a = j.transpose() * &j;
-        for k in 0..n {
-            a[(k, k)] += 1.0 + noise(&mut s).abs();
-        }
-        a
-    }
+    // The window-shaped matrices the envelope factorisation is tested on.
+    use crate::smoother::envelope_cholesky::tests::{chain_with_arrow as chain, rnd as noise};
 
     fn same_bits(x: &DMatrix<f64>, y: &DMatrix<f64>) -> bool {
         x.shape() == y.shape()
