@@ -511,9 +511,7 @@ impl PoseGraph {
                 position_std_m: noise.position_std_m,
             });
         }
-        let r_i_j = t_i_j.rotation.to_rotation_matrix().into_inner();
-        let position_m = t_i_j.translation.vector;
-        if !(r_i_j.iter().all(|x| x.is_finite()) && position_m.iter().all(|x| x.is_finite())) {
+        if !se3::is_finite(t_i_j) {
             return Err(PoseGraphError::NonFiniteMeasurement);
         }
         let (yaw_rad, position_m) = self.nodes[i].measurement(t_i_j);
