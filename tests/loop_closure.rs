@@ -428,3 +428,109 @@ fn keyframes_moved_by_the_window_keep_their_corrections() {
             .all(|c| c.translation.vector.iter().all(|v| v.is_finite()))
     );
 }
+
+/// `confirm_far_loops`: a loop that moves the graph by more than `confirm_beyond_m` (this
+/// flight's drift, 0.15 m, against 0.1) goes in only once a loop to another old map asks for the
+/// same move. Two right maps agree (both loops in, the drift out); one map alone is held and
+/// dropped after `confirm_within_keyframes`; a map whose depths are 50 % too deep asks for
+/// another move than the right one, and neither goes in.
+#[test]
+fn a_far_loop_goes_in_only_when_another_old_map_agrees() {
+    let room = Room::new();
+    let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
+    let b = camera_pose(Vector3::new(-0.7, -0.1, 1.2), 3f64.to_radians());
+    let truth_4 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
+    let (image_4, _) = room.view(4, &truth_4);
+    // Keyframes 0 (at a) and 1 (at b, its map's depths times `b_depth_factor`; no map: None),
+    // two away, then 4 back near both.
+    let run = |b_depth_factor: Option<f64>| {
+        let cfg = LoopClosureConfig {
+            confirm_far_loops: true,
+            ..config()
+        };
+        let mut closer = LoopCloser::new(cfg, room.camera);
+        let mut host = None;
+        for (id, t) in [(0u32, a), (1, b)] {
+            let (img, depth) = room.view(id as u64, &t);
+            closer.add_keyframe(id, &t, host, &img);
+            match (id, b_depth_factor) {
+                (0, _) => closer.attach_map(0, &room.map(&t, &img, &depth)),
+                (1, Some(f)) => {
+                    closer.scale_map(1, f);
+                    closer.attach_map(1, &room.map(&t, &img, &depth));
+                }
+                _ => {}
+            }
+            host = Some((id, t));
+        }
+        let host = fly_away(&room, &mut closer, (1, b));
+        let odometry_4 = drift() * truth_4;
+        let out = closer.add_keyframe(4, &odometry_4, Some(host), &image_4);
+        let err = (closer.correction() * odometry_4).inverse() * truth_4;
+        (closer, out, err)
+    };
+
+    let (mut closer, out, err) = run(Some(1.0));
+    let s = closer.stats();
+    println!(
+        "two right maps: {out:?}, {s:?}, error after {:.4} m",
+        err.translation.vector.norm()
+    );
+    assert_eq!(
+        (out.loops, s.loops_held, s.loops_closed, s.loops_unconfirmed),
+        (1, 1, 2, 0)
+    );
+    let mut old: Vec<u32> = closer.take_closures().iter().map(|c| c.old_id).collect();
+    old.sort_unstable();
+    assert_eq!(old, vec![0, 1]);
+    assert!(err.translation.vector.norm() < 0.02, "{err}");
+    assert!(err.rotation.angle() < 0.3f64.to_radians(), "{err}");
+
+    let (mut closer, out, err) = run(None);
+    let s = closer.stats();
+    assert_eq!(
+        (out.loops, s.loops_held, s.loops_closed),
+        (0, 1, 0),
+        "{s:?}"
+    );
+    assert!(closer.take_closures().is_empty());
+    assert!(
+        err.translation.vector.norm() > 0.1,
+        "the drift stays: {err}"
+    );
+    // Held through `confirm_within_keyframes` (4) new keyframes without a loop, dropped at the
+    // next.
+    let mut host = (4, drift() * truth_4);
+    for _ in 0..2 {
+        host = fly_away(&room, &mut closer, host);
+        assert_eq!(
+            closer.stats().loops_unconfirmed,
+            0,
+            "held at keyframe {}",
+            host.0
+        );
+    }
+    fly_away(&room, &mut closer, host);
+    let s = closer.stats();
+    assert_eq!((s.loops_unconfirmed, s.loops_closed), (1, 0), "{s:?}");
+    assert_eq!(closer.correction(), Isometry3::identity());
+    let dropped = closer.take_closures();
+    assert_eq!(dropped.len(), 1, "recorded as dropped");
+    assert!(dropped[0].dropped && (dropped[0].new_id, dropped[0].old_id) == (4, 0));
+
+    let (mut closer, out, _) = run(Some(1.5));
+    let s = closer.stats();
+    println!("a map 50 % deep beside the right one: {out:?}, {s:?}");
+    assert_eq!(
+        (out.loops, s.loops_held, s.loops_closed),
+        (0, 2, 0),
+        "{s:?}"
+    );
+    assert_eq!(
+        s.loops_unconfirmed, 1,
+        "the first held, dropped by the second"
+    );
+    let dropped = closer.take_closures();
+    assert!(dropped.len() == 1 && dropped[0].dropped, "{dropped:?}");
+    assert_eq!(closer.correction(), Isometry3::identity());
+}

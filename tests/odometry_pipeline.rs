@@ -1295,7 +1295,7 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
         ds.ground_truth().unwrap().unwrap().trajectory(),
         ds.camera.t_body_cam,
     );
-    let edges = loop_edge_summary(&loop_edge_errors(loops, Some(&truth)))
+    let edges = loop_edge_summary(loops, &loop_edge_errors(loops, Some(&truth)))
         .expect("loops within the ground truth");
     println!("loop edges against the truth: {edges:?}");
     assert_eq!(edges.evaluated, loops.len());

@@ -280,7 +280,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
         let loops = &out.odometry.loop_closures;
         let truth = gt_poses.map(|poses| TrueCameraPoses::new(poses, ds.camera.t_body_cam));
         let errors = loop_edge_errors(loops, truth.as_ref());
-        report.loop_edges = loop_edge_summary(&errors);
+        report.loop_edges = loop_edge_summary(loops, &errors);
         let p = a.out.join("loops.csv");
         std::fs::write(&p, loops_csv(loops, &errors))
             .with_context(|| format!("writing {}", p.display()))?;

@@ -23,6 +23,7 @@
 use super::features::{
     Descriptor, Feature, FeatureConfig, MatchConfig, detect, match_guided, predicted_px,
 };
+use super::loop_shift::LoopShift;
 use super::pnp::{PnpConfig, solve_from_prior};
 use super::pose_graph::{EdgeNoise, PoseGraph};
 use crate::camera::CameraModel;
@@ -137,6 +138,22 @@ pub struct LoopClosureConfig {
     /// spreads that as drift. S-V101 seeds 1–10 mean ATE 0.101 → 0.089 m (9 better), the
     /// keyframes in hindsight 0.051 → 0.044 m (docs/odometry-log.md, session 84).
     pub follow_window_poses: bool,
+    /// A loop that moves its new keyframe far from where the graph has it — by more than
+    /// `confirm_beyond_m` or `confirm_beyond_rad` ([`LoopShift`]) — is held instead of added,
+    /// until a loop to another old keyframe, from the same new keyframe or one of the next
+    /// `confirm_within_keyframes`, asks for the same move within `confirm_tolerance_m` and
+    /// `confirm_tolerance_rad`, each plus `confirm_tolerance_share` of the held loop's move (two
+    /// right loops differ by their maps' errors, a few percent of the distance to each old
+    /// keyframe); then both go into the graph. A held loop is dropped
+    /// (`loops_unconfirmed`) when the next loop asks for another move, or when none comes in
+    /// time: the drift it would correct, if real, is still there for the loops after it.
+    pub confirm_far_loops: bool,
+    pub confirm_beyond_m: f64,
+    pub confirm_beyond_rad: f64,
+    pub confirm_tolerance_m: f64,
+    pub confirm_tolerance_rad: f64,
+    pub confirm_tolerance_share: f64,
+    pub confirm_within_keyframes: usize,
     /// Real time: the loop closer's thread raises its nice value by this much (Linux; 0 = the
     /// tracker's). Above `[bootstrap] background_nice`: a loop can wait, the mapper's next map is
     /// what the tracker waits for (at nice 0 the closer's thread delayed the mapper on two cores
@@ -179,6 +196,13 @@ impl Default for LoopClosureConfig {
             reset_min_jump_rad: 0.035,
             hold_world_on_probation: true,
             follow_window_poses: true,
+            confirm_far_loops: false,
+            confirm_beyond_m: 0.1,
+            confirm_beyond_rad: 0.05,
+            confirm_tolerance_m: 0.05,
+            confirm_tolerance_rad: 0.02,
+            confirm_tolerance_share: 0.0,
+            confirm_within_keyframes: 4,
             thread_nice: 15,
             iterations: 10,
             max_keyframes: 2000,
@@ -230,7 +254,8 @@ pub fn loop_quality_factor(inlier_rms_px: f64, inliers: usize, inlier_ratio: f64
     }
 }
 
-/// One loop closed: the keyframes it joined and what PnP measured (`OUT/loops.csv`).
+/// One loop closed — or measured, held and dropped unconfirmed (`confirm_far_loops`): the
+/// keyframes it joined and what PnP measured (`OUT/loops.csv`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LoopClosure {
     /// The new keyframe and the stored one it was closed to.
@@ -244,6 +269,8 @@ pub struct LoopClosure {
     pub t_old_new: Isometry3<f64>,
     /// …and as the graph predicted it before (the drift the loop corrects is between the two).
     pub prior_t_old_new: Isometry3<f64>,
+    /// Held for another loop to agree with it and dropped: never in the graph.
+    pub dropped: bool,
 }
 
 /// Counters for the report.
@@ -254,6 +281,10 @@ pub struct LoopClosureStats {
     pub loops_closed: usize,
     /// Closures whose pose disagreed with the graph's prediction by more than the limits.
     pub loops_implausible: usize,
+    /// Loops held for another to agree with them (`confirm_far_loops`), and those of them
+    /// dropped unconfirmed (the rest are in `loops_closed`).
+    pub loops_held: usize,
+    pub loops_unconfirmed: usize,
     /// Loop edges the graph's robust kernel holds for wrong at its last solve.
     pub loops_rejected_by_graph: usize,
     /// The correction's size at the end: translation m, heading rad.
@@ -292,12 +323,65 @@ pub struct LoopCloser {
     stats: LoopClosureStats,
     /// Loops closed since [`Self::take_closures`] last took them.
     closures: Vec<LoopClosure>,
+    /// A loop waiting for another to agree with it (`confirm_far_loops`).
+    held: Option<HeldLoop>,
+}
+
+/// A loop edge measured but not yet in the graph.
+struct HeldLoop {
+    old_node: usize,
+    new_node: usize,
+    t_old_new: Isometry3<f64>,
+    noise: EdgeNoise,
+    shift: LoopShift,
+    closure: LoopClosure,
 }
 
 /// A position standard deviation `std_m` with `per_m` of the baseline of `t_i_j` added in
 /// quadrature, m.
 fn with_baseline(std_m: f64, per_m: f64, t_i_j: &Isometry3<f64>) -> f64 {
     std_m.hypot(per_m * t_i_j.translation.vector.norm())
+}
+
+/// The loop edges to add now for a loop just measured (`confirm_far_loops`): the held one
+/// and this one if they agree; this one alone if it moves the graph little (a held one that it
+/// contradicts is dropped); none if it is held.
+fn confirm(
+    c: &LoopClosureConfig,
+    held: &mut Option<HeldLoop>,
+    stats: &mut LoopClosureStats,
+    closures: &mut Vec<LoopClosure>,
+    edge: HeldLoop,
+) -> Option<[Option<HeldLoop>; 2]> {
+    if !c.confirm_far_loops {
+        return Some([Some(edge), None]);
+    }
+    let previous = held.take();
+    if let Some(h) = previous {
+        let k = c.confirm_tolerance_share;
+        let tol_m = c.confirm_tolerance_m + k * h.shift.position_m.norm();
+        let tol_rad = c.confirm_tolerance_rad + k * h.shift.yaw_rad.abs();
+        let agree = h.old_node != edge.old_node && h.shift.agrees(&edge.shift, tol_m, tol_rad);
+        if agree {
+            return Some([Some(h), Some(edge)]);
+        }
+        drop_held(h, stats, closures);
+    }
+    if edge.shift.beyond(c.confirm_beyond_m, c.confirm_beyond_rad) {
+        stats.loops_held += 1;
+        *held = Some(edge);
+        return None;
+    }
+    Some([Some(edge), None])
+}
+
+/// A held loop dropped unconfirmed: counted, and recorded as dropped.
+fn drop_held(h: HeldLoop, stats: &mut LoopClosureStats, closures: &mut Vec<LoopClosure>) {
+    stats.loops_unconfirmed += 1;
+    closures.push(LoopClosure {
+        dropped: true,
+        ..h.closure
+    });
 }
 
 /// Heading of a camera pose's optical axis is compared through this.
@@ -316,6 +400,7 @@ impl LoopCloser {
             odometry_noise_scale: 1.0,
             stats: LoopClosureStats::default(),
             closures: Vec::new(),
+            held: None,
         }
     }
 
@@ -431,6 +516,10 @@ impl LoopCloser {
                 depth_factor: 1.0,
             },
         );
+        let waited = self.cfg.confirm_within_keyframes;
+        if let Some(h) = self.held.take_if(|h| h.new_node + waited < node) {
+            drop_held(h, &mut self.stats, &mut self.closures);
+        }
         let out = self.search(id);
         let ms = started.elapsed().as_secs_f64() * 1e3;
         let s = &mut self.stats;
@@ -607,17 +696,7 @@ impl LoopCloser {
                 ),
             };
             let old_node = old.node;
-            if self
-                .graph
-                .add_loop_edge(old_node, new_node, &t_old_new, noise)
-                .is_err()
-            {
-                continue;
-            }
-            let summary = self.graph.optimize(self.cfg.iterations);
-            self.stats.loops_rejected_by_graph = summary.rejected_loop_edges;
-            self.stats.loops_closed += 1;
-            self.closures.push(LoopClosure {
+            let closure = LoopClosure {
                 new_id: id,
                 old_id: cid,
                 inliers: sol.num_inliers,
@@ -625,7 +704,42 @@ impl LoopCloser {
                 inlier_rms_px: sol.inlier_rms_px,
                 t_old_new,
                 prior_t_old_new: prior_t_new_old.inverse(),
-            });
+                dropped: false,
+            };
+            let edge = HeldLoop {
+                old_node,
+                new_node,
+                t_old_new,
+                noise,
+                shift: LoopShift::of(&t_world_old, &t_world_new, &t_old_new),
+                closure,
+            };
+            let edges = match confirm(
+                &self.cfg,
+                &mut self.held,
+                &mut self.stats,
+                &mut self.closures,
+                edge,
+            ) {
+                Some(edges) => edges,
+                None => continue,
+            };
+            let mut added = false;
+            for e in edges.into_iter().flatten() {
+                if (self.graph)
+                    .add_loop_edge(e.old_node, e.new_node, &e.t_old_new, e.noise)
+                    .is_ok()
+                {
+                    self.stats.loops_closed += 1;
+                    self.closures.push(e.closure);
+                    added = true;
+                }
+            }
+            if !added {
+                continue;
+            }
+            let summary = self.graph.optimize(self.cfg.iterations);
+            self.stats.loops_rejected_by_graph = summary.rejected_loop_edges;
             out.closed_to.get_or_insert(cid);
             out.loops += 1;
             if out.loops >= self.cfg.max_loops_per_keyframe.max(1) {

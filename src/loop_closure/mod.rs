@@ -7,10 +7,12 @@
 //! Layers, each using only the ones above it: [`features`] (corners and binary descriptors on a
 //! keyframe's image, guided matching), [`pnp`] (a camera pose from 3D points of an old keyframe's
 //! semidense map and their matches in a new keyframe), [`pose_graph`] (the 4-DoF graph);
+//! [`loop_shift`] the move a loop asks of the graph, to check one loop against the next;
 //! [`two_view`] the direction of a translation between two views whose rotation the gyro gives.
 
 pub mod closer;
 pub mod features;
+pub mod loop_shift;
 pub mod pnp;
 pub mod pose_graph;
 pub mod two_view;

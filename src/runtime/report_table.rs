@@ -218,7 +218,7 @@ impl ReplayReport {
                 format!(
                     "{} closed of {} candidates ({} implausible, {} held wrong by the graph); \
                      correction at the end {:.3} m, {:.2}°; {:.1} ms mean / {:.1} ms max per \
-                     keyframe{}",
+                     keyframe{}{}",
                     l.loops_closed,
                     l.candidates_tried,
                     l.loops_implausible,
@@ -230,6 +230,13 @@ impl ReplayReport {
                     match l.jobs_dropped {
                         0 => String::new(),
                         n => format!(", {n} jobs dropped"),
+                    },
+                    match l.loops_held {
+                        0 => String::new(),
+                        n => format!(
+                            "; {n} far loops held for another to agree, {} of them dropped",
+                            l.loops_unconfirmed
+                        ),
                     }
                 ),
             );

@@ -126,7 +126,7 @@ pub(super) struct LoopLink {
     /// was started from (one the closer's thread has not taken in yet carries its host's
     /// correction, as the closer will give it) and its camera pose as handed over.
     started: HashMap<u32, Started>,
-    /// Every loop closed, in order (`OUT/loops.csv`).
+    /// Every loop closed, or held and dropped unconfirmed, in order (`OUT/loops.csv`).
     closures: Vec<LoopRecord>,
     /// The newest keyframe handed to the closer.
     newest: Option<u32>,

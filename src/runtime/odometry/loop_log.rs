@@ -1,4 +1,4 @@
-//! The record of every loop the loop closer closed (`OUT/loops.csv`): which keyframes, how well
+//! The record of every loop the loop closer closed, or held and dropped (`OUT/loops.csv`): which keyframes, how well
 //! PnP explained the matches, the drift it corrected, and — with ground truth — how far the
 //! measured loop edge and the graph's prediction before it were from the true relative pose: the
 //! figures that tell a wrong loop from a drifted odometry.
@@ -75,12 +75,13 @@ pub fn loop_edge_errors(
         .collect()
 }
 
-/// `loops.csv`: one row per loop closed, with its errors ([`loop_edge_errors`], one per row);
-/// the error columns NaN where there are none.
+/// `loops.csv`: one row per loop closed or dropped (`dropped` 1: held for another loop to agree
+/// and never in the graph), with its errors ([`loop_edge_errors`], one per row); the error
+/// columns NaN where there are none.
 pub fn loops_csv(rows: &[LoopRecord], errors: &[Option<LoopEdgeErrors>]) -> String {
     let mut s = String::from(
         "new_t_ns,old_t_ns,inliers,inlier_ratio,inlier_rms_px,correction_m,correction_rad,\
-         edge_error_m,edge_error_rad,prior_error_m,prior_error_rad\n",
+         edge_error_m,edge_error_rad,prior_error_m,prior_error_rad,dropped\n",
     );
     for (r, e) in rows.iter().zip(errors) {
         let c = &r.closure;
@@ -92,7 +93,7 @@ pub fn loops_csv(rows: &[LoopRecord], errors: &[Option<LoopEdgeErrors>]) -> Stri
             prior_rad: f64::NAN,
         });
         s.push_str(&format!(
-            "{},{},{},{:.3},{:.3},{:.4},{:.5},{:.4},{:.5},{:.4},{:.5}\n",
+            "{},{},{},{:.3},{:.3},{:.4},{:.5},{:.4},{:.5},{:.4},{:.5},{}\n",
             r.new_t.0,
             r.old_t.0,
             c.inliers,
@@ -103,13 +104,15 @@ pub fn loops_csv(rows: &[LoopRecord], errors: &[Option<LoopEdgeErrors>]) -> Stri
             e.edge_m,
             e.edge_rad,
             e.prior_m,
-            e.prior_rad
+            e.prior_rad,
+            u8::from(c.dropped)
         ));
     }
     s
 }
 
-/// The loop edges' errors against the ground truth over a run, for the report.
+/// The loop edges' errors against the ground truth over a run (the loops that went into the
+/// graph), for the report.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct LoopEdgeSummary {
     /// Loops with ground truth at both keyframes.
@@ -122,9 +125,16 @@ pub struct LoopEdgeSummary {
     pub prior_m_p50: f64,
 }
 
-/// Summary of the loops' errors ([`loop_edge_errors`]; `None` if none has any).
-pub fn loop_edge_summary(errors: &[Option<LoopEdgeErrors>]) -> Option<LoopEdgeSummary> {
-    let errors: Vec<LoopEdgeErrors> = errors.iter().flatten().copied().collect();
+/// Summary of the errors ([`loop_edge_errors`], one per row) of the loops in the graph (`None` if
+/// none has any).
+pub fn loop_edge_summary(
+    rows: &[LoopRecord],
+    errors: &[Option<LoopEdgeErrors>],
+) -> Option<LoopEdgeSummary> {
+    let errors: Vec<LoopEdgeErrors> = (rows.iter().zip(errors))
+        .filter(|(r, _)| !r.closure.dropped)
+        .filter_map(|(_, e)| *e)
+        .collect();
     if errors.is_empty() {
         return None;
     }
@@ -182,6 +192,7 @@ mod tests {
                 inlier_rms_px: 0.6,
                 t_old_new: exact,
                 prior_t_old_new: exact * drift,
+                dropped: false,
             },
         };
         let r = record(new_t);
@@ -198,14 +209,22 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines.len(), 3);
         assert!(lines[1].starts_with("90000000,20000000,40,0.800,0.600,0.0500,0.01000,0.0000,"));
-        assert!(lines[2].ends_with("NaN,NaN,NaN,NaN"), "{}", lines[2]);
-        let s = loop_edge_summary(&errors).unwrap();
+        assert!(lines[1].ends_with(",0"), "{}", lines[1]);
+        assert!(lines[2].ends_with("NaN,NaN,NaN,NaN,0"), "{}", lines[2]);
+        let s = loop_edge_summary(&[r, outside], &errors).unwrap();
         assert_eq!(s.evaluated, 1);
         assert!(s.edge_m_max < 1e-9 && (s.prior_m_p50 - 0.05).abs() < 1e-9);
         assert_eq!(
-            loop_edge_summary(&loop_edge_errors(&[outside], Some(&truth))),
+            loop_edge_summary(&[outside], &loop_edge_errors(&[outside], Some(&truth))),
             None
         );
+        // A dropped loop is written, with its errors, and left out of the summary.
+        let mut dropped = r;
+        dropped.closure.dropped = true;
+        let errors = loop_edge_errors(&[dropped], Some(&truth));
+        assert_eq!(errors, vec![Some(e)]);
+        assert!(loops_csv(&[dropped], &errors).ends_with(",1\n"));
+        assert_eq!(loop_edge_summary(&[dropped], &errors), None);
         assert_eq!(loop_edge_errors(&[r], None), vec![None]);
     }
 }

@@ -142,7 +142,7 @@ pub struct OdometryStats {
     pub gyro_alignment: GyroAlignmentStats,
     /// The loop closer's counters (`[loop_closure] enabled`).
     pub loop_closure: Option<LoopClosureStats>,
-    /// Every loop closed, in order (`OUT/loops.csv`; real time: those the closer's thread had
+    /// Every loop closed, or held and dropped unconfirmed, in order (`OUT/loops.csv`; real time: those the closer's thread had
     /// reported by the last frame).
     pub loop_closures: Vec<LoopRecord>,
     /// Every keyframe the loop closer holds, by time, with its body pose `t_world_body` as the
