@@ -6,7 +6,7 @@ use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vect
 use std::collections::HashMap;
 use vidslam::camera::CameraModel;
 use vidslam::image::Image;
-use vidslam::loop_closure::closer::{LoopCloser, LoopClosureConfig};
+use vidslam::loop_closure::closer::{KeyframeOutcome, LoopCloser, LoopClosureConfig};
 use vidslam::mapping::semidense::{MapPoint, SemidenseMap};
 use vidslam::sim::exposure::Exposure;
 use vidslam::sim::{FramePoses, Renderer, Scene};
@@ -88,10 +88,12 @@ impl Room {
 
 /// Keyframes two back are loop candidates; the odometry's edges as uncertain as the drift this
 /// flight puts into its two edges (0.16 m and 3° in a few keyframes, where a real flight spreads
-/// as much over a hundred).
+/// as much over a hundred); every loop counts fully as it closes (the tests of
+/// `confirm_far_loops` turn it on).
 fn config() -> LoopClosureConfig {
     LoopClosureConfig {
         enabled: true,
+        confirm_far_loops: false,
         min_age_keyframes: 2,
         odometry_position_std_m: 0.1,
         odometry_yaw_std_rad: 0.03,
@@ -165,6 +167,47 @@ fn fly_away(
         host = (id, odometry);
     }
     host
+}
+
+/// Keyframe 0's camera, keyframe 1's beside it, and keyframe 4's true camera back near both.
+fn two_old_maps_poses() -> [Isometry3<f64>; 3] {
+    [
+        camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0),
+        camera_pose(Vector3::new(-0.7, -0.1, 1.2), 3f64.to_radians()),
+        camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians()),
+    ]
+}
+
+/// Keyframes 0 and 1 mapped at [`two_old_maps_poses`] (keyframe 1's depths times
+/// `b_depth_factor`; no map for None), two away ([`fly_away`]), then keyframe 4 back near both at
+/// its drifted odometry pose. Returns the closer, keyframe 4's outcome, and its pose error after.
+fn back_near_two_old_maps(
+    room: &Room,
+    cfg: LoopClosureConfig,
+    b_depth_factor: Option<f64>,
+) -> (LoopCloser, KeyframeOutcome, Isometry3<f64>) {
+    let [a, b, truth_4] = two_old_maps_poses();
+    let mut closer = LoopCloser::new(cfg, room.camera);
+    let mut host = None;
+    for (id, t) in [(0u32, a), (1, b)] {
+        let (img, depth) = room.view(id as u64, &t);
+        closer.add_keyframe(id, &t, host, &img);
+        match (id, b_depth_factor) {
+            (0, _) => closer.attach_map(0, &room.map(&t, &img, &depth)),
+            (1, Some(f)) => {
+                closer.scale_map(1, f);
+                closer.attach_map(1, &room.map(&t, &img, &depth));
+            }
+            _ => {}
+        }
+        host = Some((id, t));
+    }
+    let host = fly_away(room, &mut closer, (1, b));
+    let odometry_4 = drift() * truth_4;
+    let (image_4, _) = room.view(4, &truth_4);
+    let out = closer.add_keyframe(4, &odometry_4, Some(host), &image_4);
+    let err = (closer.correction() * odometry_4).inverse() * truth_4;
+    (closer, out, err)
 }
 
 #[test]
@@ -317,28 +360,14 @@ fn a_view_of_another_place_closes_nothing() {
 #[test]
 fn a_keyframe_closes_to_several_old_maps_when_allowed() {
     let room = Room::new();
-    let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
-    let b = camera_pose(Vector3::new(-0.7, -0.1, 1.2), 3f64.to_radians());
-    let truth_4 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
-    let (image_4, _) = room.view(4, &truth_4);
+    let [a, b, truth_4] = two_old_maps_poses();
     let run = |max_loops: usize| {
         let cfg = LoopClosureConfig {
             max_loops_per_keyframe: max_loops,
             ..config()
         };
-        let mut closer = LoopCloser::new(cfg, room.camera);
-        let mut host = None;
-        for (id, t) in [(0u32, a), (1, b)] {
-            let (img, depth) = room.view(id as u64, &t);
-            closer.add_keyframe(id, &t, host, &img);
-            closer.attach_map(id, &room.map(&t, &img, &depth));
-            host = Some((id, t));
-        }
-        let host = fly_away(&room, &mut closer, (1, b));
-        let odometry_4 = drift() * truth_4;
-        let out = closer.add_keyframe(4, &odometry_4, Some(host), &image_4);
-        let err = (closer.correction() * odometry_4).inverse() * truth_4;
-        (out, closer.take_closures(), err, odometry_4)
+        let (mut closer, out, err) = back_near_two_old_maps(&room, cfg, Some(1.0));
+        (out, closer.take_closures(), err, drift() * truth_4)
     };
 
     let (one, closures, err, _) = run(1);
@@ -437,37 +466,14 @@ fn keyframes_moved_by_the_window_keep_their_corrections() {
 #[test]
 fn a_far_loop_goes_in_only_when_another_old_map_agrees() {
     let room = Room::new();
-    let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
-    let b = camera_pose(Vector3::new(-0.7, -0.1, 1.2), 3f64.to_radians());
-    let truth_4 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
-    let (image_4, _) = room.view(4, &truth_4);
-    // Keyframes 0 (at a) and 1 (at b, its map's depths times `b_depth_factor`; no map: None),
-    // two away, then 4 back near both.
+    let truth_4 = two_old_maps_poses()[2];
     let run = |b_depth_factor: Option<f64>| {
         let cfg = LoopClosureConfig {
             confirm_far_loops: true,
+            confirm_weak_std_factor: 0.0,
             ..config()
         };
-        let mut closer = LoopCloser::new(cfg, room.camera);
-        let mut host = None;
-        for (id, t) in [(0u32, a), (1, b)] {
-            let (img, depth) = room.view(id as u64, &t);
-            closer.add_keyframe(id, &t, host, &img);
-            match (id, b_depth_factor) {
-                (0, _) => closer.attach_map(0, &room.map(&t, &img, &depth)),
-                (1, Some(f)) => {
-                    closer.scale_map(1, f);
-                    closer.attach_map(1, &room.map(&t, &img, &depth));
-                }
-                _ => {}
-            }
-            host = Some((id, t));
-        }
-        let host = fly_away(&room, &mut closer, (1, b));
-        let odometry_4 = drift() * truth_4;
-        let out = closer.add_keyframe(4, &odometry_4, Some(host), &image_4);
-        let err = (closer.correction() * odometry_4).inverse() * truth_4;
-        (closer, out, err)
+        back_near_two_old_maps(&room, cfg, b_depth_factor)
     };
 
     let (mut closer, out, err) = run(Some(1.0));
@@ -533,4 +539,69 @@ fn a_far_loop_goes_in_only_when_another_old_map_agrees() {
     let dropped = closer.take_closures();
     assert!(dropped.len() == 1 && dropped[0].dropped, "{dropped:?}");
     assert_eq!(closer.correction(), Isometry3::identity());
+}
+
+/// `confirm_weak_std_factor`: a far loop goes in at once, weakened, and gets its own deviations
+/// back when a loop to another old map agrees. Alone, it pulls the drifted keyframe only part of
+/// the way; with a second right map both pull fully, as without the check.
+#[test]
+fn a_far_loop_goes_in_weak_and_is_restored_when_another_old_map_agrees() {
+    let room = Room::new();
+    let truth_3 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
+    let (image_3, _) = room.view(3, &truth_3);
+    let weak = LoopClosureConfig {
+        confirm_far_loops: true,
+        confirm_weak_std_factor: 3.0,
+        ..config()
+    };
+    let error_m = |cfg: LoopClosureConfig| {
+        let (mut closer, odometry_3, closed_to) =
+            fly_with(&room, &image_3, &truth_3, cfg, 1.0, |c, m| {
+                c.attach_map(0, m)
+            });
+        assert_eq!(closed_to, Some(0));
+        let taken = closer.take_closures();
+        assert!(taken.len() == 1 && !taken[0].dropped);
+        let err = (closer.correction() * odometry_3).inverse() * truth_3;
+        (closer.stats(), err.translation.vector.norm())
+    };
+    let (s_full, full_m) = error_m(config());
+    let (s_weak, weak_m) = error_m(weak.clone());
+    let drift_m = (drift() * truth_3).inverse() * truth_3;
+    let drift_m = drift_m.translation.vector.norm();
+    println!("one old map: drift {drift_m:.3} m, after the loop {full_m:.4} m, weak {weak_m:.4} m");
+    assert_eq!((s_full.loops_held, s_full.loops_closed), (0, 1));
+    assert_eq!(
+        (s_weak.loops_held, s_weak.loops_closed),
+        (1, 1),
+        "{s_weak:?}"
+    );
+    assert!(weak_m > 2.0 * full_m && weak_m < 0.8 * drift_m, "{weak_m}");
+
+    // Two right old maps: the second agrees and restores the first.
+    let two_maps = |cfg: LoopClosureConfig| {
+        let (closer, _, err) = back_near_two_old_maps(&room, cfg, Some(1.0));
+        (closer.stats(), err)
+    };
+    let both = LoopClosureConfig {
+        max_loops_per_keyframe: 2,
+        ..config()
+    };
+    let (s_both, err_both) = two_maps(both.clone());
+    let (s, err) = two_maps(LoopClosureConfig {
+        confirm_far_loops: true,
+        confirm_weak_std_factor: 3.0,
+        ..both
+    });
+    assert_eq!((s_both.loops_closed, s_both.loops_held), (2, 0));
+    assert_eq!(
+        (s.loops_closed, s.loops_held, s.loops_unconfirmed),
+        (2, 1, 0),
+        "{s:?}"
+    );
+    let d = err_both.inverse() * err;
+    assert!(
+        d.translation.vector.norm() < 1e-9,
+        "as without the check: {d}"
+    );
 }

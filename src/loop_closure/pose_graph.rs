@@ -298,15 +298,30 @@ impl PoseGraph {
     /// Adds a loop edge from the measured relative pose `t_i_j` (body j's pose in body i's
     /// frame: `p_i = t_i_j * p_j`); only its relative yaw and translation are used, and it goes
     /// through the Cauchy kernel.
+    /// Returns the edge's index (for [`Self::set_edge_noise`]).
     pub fn add_loop_edge(
         &mut self,
         i: usize,
         j: usize,
         t_i_j: &Isometry3<f64>,
         noise: EdgeNoise,
-    ) -> Result<(), PoseGraphError> {
+    ) -> Result<usize, PoseGraphError> {
         self.check_indices(i, j)?;
-        self.push_edge(i, j, t_i_j, noise, EdgeKind::Loop)
+        self.push_edge(i, j, t_i_j, noise, EdgeKind::Loop)?;
+        Ok(self.edges.len() - 1)
+    }
+
+    /// Sets the standard deviations of edge `index` (as returned by [`Self::add_loop_edge`]);
+    /// ignored unless the index exists and both are finite and positive.
+    pub fn set_edge_noise(&mut self, index: usize, noise: EdgeNoise) {
+        let valid = |s: f64| s.is_finite() && s > 0.0;
+        if let Some(e) = self.edges.get_mut(index)
+            && valid(noise.yaw_std_rad)
+            && valid(noise.position_std_m)
+        {
+            e.inv_yaw_std = 1.0 / noise.yaw_std_rad;
+            e.inv_position_std = 1.0 / noise.position_std_m;
+        }
     }
 
     /// Number of loop edges.
@@ -1006,6 +1021,55 @@ mod tests {
             assert!((xv - e).amax() < 1e-9 * e.amax().max(1.0), "node {v}");
         }
         assert_eq!(x[4], Vector4::zeros());
+    }
+
+    /// A loop edge added weak pulls the graph a little; given its own deviations back
+    /// (`set_edge_noise`, by the index `add_loop_edge` returned) it pulls as one added so.
+    #[test]
+    fn a_loop_edge_weakened_and_restored_pulls_as_its_deviations_say() {
+        let (truth, odometry) = loop_trajectory(40, 1);
+        let last = truth.len() - 1;
+        let t_last_0 = truth[last].inv_mul(&truth[0]);
+        let weak = EdgeNoise {
+            yaw_std_rad: 10.0 * NOISE.yaw_std_rad,
+            position_std_m: 10.0 * NOISE.position_std_m,
+        };
+        let solved = |noise: EdgeNoise, restore: bool| {
+            let mut g = chain(&odometry);
+            let before = g.loop_edge_count();
+            let ix = g.add_loop_edge(last, 0, &t_last_0, noise).unwrap();
+            assert_eq!(g.loop_edge_count(), before + 1);
+            if restore {
+                g.set_edge_noise(ix, NOISE);
+                // Invalid deviations or an index beyond the edges change nothing.
+                g.set_edge_noise(
+                    ix,
+                    EdgeNoise {
+                        yaw_std_rad: 0.0,
+                        ..NOISE
+                    },
+                );
+                g.set_edge_noise(ix + 1, weak);
+            }
+            g.optimize(50);
+            g
+        };
+        let (tight, weakened, restored) = (
+            solved(NOISE, false),
+            solved(weak, false),
+            solved(weak, true),
+        );
+        let (p_tight, p_weak, p_restored) = (
+            position_error(&tight, &truth, last),
+            position_error(&weakened, &truth, last),
+            position_error(&restored, &truth, last),
+        );
+        println!("last node off by {p_tight} / {p_weak} / {p_restored} m");
+        assert!(p_weak > 2.0 * p_tight, "{p_tight} {p_weak}");
+        for k in 0..tight.len() {
+            let d = tight.pose(k).inverse() * restored.pose(k);
+            assert!(d.translation.vector.norm() < 1e-12, "node {k}: {d}");
+        }
     }
 
     #[test]

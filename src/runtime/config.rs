@@ -185,6 +185,30 @@ impl Config {
                 ));
             }
         }
+        let l = &self.loop_closure;
+        for (key, v, max) in [
+            ("confirm_beyond_m", l.confirm_beyond_m, 10.0),
+            (
+                "confirm_beyond_rad",
+                l.confirm_beyond_rad,
+                std::f64::consts::PI,
+            ),
+            ("confirm_tolerance_m", l.confirm_tolerance_m, 10.0),
+            (
+                "confirm_tolerance_rad",
+                l.confirm_tolerance_rad,
+                std::f64::consts::PI,
+            ),
+            ("confirm_tolerance_share", l.confirm_tolerance_share, 10.0),
+            ("confirm_weak_std_factor", l.confirm_weak_std_factor, 100.0),
+        ] {
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
+                return Err(format!(
+                    "{}[loop_closure] {key} = {v}: must be within 0 … {max}",
+                    at("loop_closure", key)
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -243,6 +267,13 @@ mod tests {
             e.contains("line 3") && e.contains("[window] map_scale_gain"),
             "{e}"
         );
+        let e = Config::parse("[loop_closure]\nenabled = true\nconfirm_weak_std_factor = -3.0\n")
+            .unwrap_err();
+        assert!(
+            e.contains("line 3") && e.contains("[loop_closure] confirm_weak_std_factor"),
+            "{e}"
+        );
+        assert!(Config::parse("[loop_closure]\nconfirm_weak_std_factor = 0.0\n").is_ok());
         let e = Config::parse("[window]\nmap_scale_step_std = 0.0\n").unwrap_err();
         assert!(e.contains("line 2") && e.contains("must be > 0"), "{e}");
         let e = Config::parse("[gyro_alignment]\n\ninitial_rotation_deg = [0.0, 12.0, 0.0]\n")
