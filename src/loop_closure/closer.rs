@@ -366,23 +366,23 @@ fn confirm(
     stats: &mut LoopClosureStats,
     closures: &mut Vec<LoopClosure>,
     edge: HeldLoop,
-) -> Option<[Option<HeldLoop>; 2]> {
+) -> [Option<HeldLoop>; 2] {
     if !c.confirm_far_loops {
-        return Some([Some(edge), None]);
+        return [Some(edge), None];
     }
     let previous = held.take();
     if let Some(h) = previous {
         if confirms(c, &h.shift, h.old_node, &edge) {
-            return Some([Some(h), Some(edge)]);
+            return [Some(h), Some(edge)];
         }
         drop_held(h, stats, closures);
     }
     if edge.shift.beyond(c.confirm_beyond_m, c.confirm_beyond_rad) {
         stats.loops_held += 1;
         *held = Some(edge);
-        return None;
+        return [None, None];
     }
-    Some([Some(edge), None])
+    [Some(edge), None]
 }
 
 /// Whether loop `edge` confirms a held loop to `held_old_node` that asks for `held_shift`: another
@@ -432,10 +432,7 @@ fn add_weak_until_confirmed(
     };
     let weak = !confirmed && edge.shift.beyond(c.confirm_beyond_m, c.confirm_beyond_rad);
     let f = if weak { c.confirm_weak_std_factor } else { 1.0 };
-    let noise = EdgeNoise {
-        yaw_std_rad: f * edge.noise.yaw_std_rad,
-        position_std_m: f * edge.noise.position_std_m,
-    };
+    let noise = edge.noise.scaled(f);
     let Ok(ix) = graph.add_loop_edge(edge.old_node, edge.new_node, &edge.t_old_new, noise) else {
         return false;
     };
@@ -573,11 +570,7 @@ impl LoopCloser {
             let prev = node - 1;
             let t_p_n = self.graph.odometry_pose(prev).inverse() * t_world_cam;
             let n = noise(&t_p_n);
-            let loose = EdgeNoise {
-                yaw_std_rad: 10.0 * n.yaw_std_rad,
-                position_std_m: 10.0 * n.position_std_m,
-            };
-            let _ = self.graph.add_relative_edge(prev, node, &t_p_n, loose);
+            let _ = (self.graph).add_relative_edge(prev, node, &t_p_n, n.scaled(10.0));
         }
         let features = detect(image, &c.features);
         self.entries.insert(
@@ -811,7 +804,7 @@ impl LoopCloser {
                     edge,
                 );
                 let mut added = false;
-                for e in edges.into_iter().flatten().flatten() {
+                for e in edges.into_iter().flatten() {
                     if (self.graph)
                         .add_loop_edge(e.old_node, e.new_node, &e.t_old_new, e.noise)
                         .is_ok()

@@ -8,10 +8,10 @@
 //! matches on a map whose depths are off, a PnP pose that fits them) asks for a move of its own.
 //! This is ORB-SLAM's check of a loop against the next detections, read in the graph's terms:
 //! the closer holds a loop that moves the graph far until another agrees with it
-//! ([`LoopClosureConfig::confirm_shift_beyond_m`](super::closer::LoopClosureConfig)).
+//! ([`LoopClosureConfig::confirm_far_loops`](super::closer::LoopClosureConfig::confirm_far_loops)).
 
+use super::pose_graph::{wrap_angle, yaw_of};
 use nalgebra::{Isometry3, Vector3};
-use std::f64::consts::{PI, TAU};
 
 /// The move a loop asks of its new keyframe: the camera's position by the loop minus the graph's,
 /// world frame, m, and its heading (the camera x axis about world z) likewise, rad in (−π, π].
@@ -21,10 +21,9 @@ pub struct LoopShift {
     pub yaw_rad: f64,
 }
 
-/// Heading of a pose's x axis about world z, rad (the pose graph's yaw: `atan2(R₁₀, R₀₀)`).
+/// Heading of a pose's x axis about world z, rad (the pose graph's yaw).
 fn heading_rad(t: &Isometry3<f64>) -> f64 {
-    let r = t.rotation.to_rotation_matrix();
-    r[(1, 0)].atan2(r[(0, 0)])
+    yaw_of(t.rotation.to_rotation_matrix().matrix())
 }
 
 impl LoopShift {
@@ -36,10 +35,9 @@ impl LoopShift {
         t_old_new: &Isometry3<f64>,
     ) -> Self {
         let by_loop = t_world_old * t_old_new;
-        let yaw = (heading_rad(&by_loop) - heading_rad(t_world_new)).rem_euclid(TAU);
         LoopShift {
             position_m: by_loop.translation.vector - t_world_new.translation.vector,
-            yaw_rad: if yaw > PI { yaw - TAU } else { yaw },
+            yaw_rad: wrap_angle(heading_rad(&by_loop) - heading_rad(t_world_new)),
         }
     }
 
@@ -51,8 +49,7 @@ impl LoopShift {
     /// Whether two loops ask for the same move within `tol_m` and `tol_rad` (false if either is
     /// not finite).
     pub fn agrees(&self, other: &LoopShift, tol_m: f64, tol_rad: f64) -> bool {
-        let dyaw = (self.yaw_rad - other.yaw_rad).rem_euclid(TAU);
-        let dyaw = dyaw.min(TAU - dyaw);
+        let dyaw = wrap_angle(self.yaw_rad - other.yaw_rad).abs();
         (self.position_m - other.position_m).norm() <= tol_m && dyaw <= tol_rad
     }
 }
@@ -61,6 +58,7 @@ impl LoopShift {
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
+    use std::f64::consts::PI;
 
     fn pose(yaw_rad: f64, pitch_rad: f64, p: [f64; 3]) -> Isometry3<f64> {
         Isometry3::from_parts(

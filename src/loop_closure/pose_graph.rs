@@ -111,6 +111,22 @@ pub struct EdgeNoise {
     pub position_std_m: f64,
 }
 
+impl EdgeNoise {
+    /// Both deviations times `factor`.
+    pub fn scaled(self, factor: f64) -> Self {
+        EdgeNoise {
+            yaw_std_rad: factor * self.yaw_std_rad,
+            position_std_m: factor * self.position_std_m,
+        }
+    }
+
+    /// Both deviations finite and positive (else an edge refuses them).
+    fn is_valid(&self) -> bool {
+        let valid = |s: f64| s.is_finite() && s > 0.0;
+        valid(self.yaw_std_rad) && valid(self.position_std_m)
+    }
+}
+
 /// Why an edge was refused (the graph is left unchanged).
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum PoseGraphError {
@@ -314,10 +330,8 @@ impl PoseGraph {
     /// Sets the standard deviations of edge `index` (as returned by [`Self::add_loop_edge`]);
     /// ignored unless the index exists and both are finite and positive.
     pub fn set_edge_noise(&mut self, index: usize, noise: EdgeNoise) {
-        let valid = |s: f64| s.is_finite() && s > 0.0;
         if let Some(e) = self.edges.get_mut(index)
-            && valid(noise.yaw_std_rad)
-            && valid(noise.position_std_m)
+            && noise.is_valid()
         {
             e.inv_yaw_std = 1.0 / noise.yaw_std_rad;
             e.inv_position_std = 1.0 / noise.position_std_m;
@@ -519,8 +533,7 @@ impl PoseGraph {
         noise: EdgeNoise,
         kind: EdgeKind,
     ) -> Result<(), PoseGraphError> {
-        let valid = |s: f64| s.is_finite() && s > 0.0;
-        if !valid(noise.yaw_std_rad) || !valid(noise.position_std_m) {
+        if !noise.is_valid() {
             return Err(PoseGraphError::InvalidNoise {
                 yaw_std_rad: noise.yaw_std_rad,
                 position_std_m: noise.position_std_m,
@@ -654,7 +667,7 @@ impl PoseGraph {
 }
 
 /// The ZYX yaw of a rotation matrix, rad: `atan2(R[1,0], R[0,0])`.
-fn yaw_of(r: &Matrix3<f64>) -> f64 {
+pub(crate) fn yaw_of(r: &Matrix3<f64>) -> f64 {
     r[(1, 0)].atan2(r[(0, 0)])
 }
 
@@ -664,7 +677,7 @@ fn rz(yaw: f64) -> UnitQuaternion<f64> {
 }
 
 /// An angle wrapped into (−π, π], rad.
-fn wrap_angle(a: f64) -> f64 {
+pub(crate) fn wrap_angle(a: f64) -> f64 {
     let w = a.rem_euclid(TAU);
     if w > PI { w - TAU } else { w }
 }
