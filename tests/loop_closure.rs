@@ -338,6 +338,52 @@ fn a_stored_map_scaled_back_measures_its_loops_as_the_true_one() {
     }
 }
 
+/// `vidslam replay --loop-edges gt` (a diagnostic): with both keyframes' true camera poses given,
+/// a loop found on keyframe 0's map made 10 % too deep goes into the graph — and into its record —
+/// as their true relative pose, and the correction ends nearer the truth than with the measured
+/// edge; with keyframe 3's true pose missing the loop keeps its measured edge.
+#[test]
+fn with_true_poses_given_a_loop_goes_in_as_the_true_relative_pose() {
+    let room = Room::new();
+    let truth_3 = camera_pose(Vector3::new(-0.55, 0.15, 1.25), 4f64.to_radians());
+    let (image_3, _) = room.view(3, &truth_3);
+    let a = camera_pose(Vector3::new(-0.8, 0.0, 1.2), 0.0);
+    let true_edge = a.inverse() * truth_3;
+    // The loop's edge as recorded, and keyframe 3's error after it, m.
+    let run = |true_poses: &[(u32, Isometry3<f64>)]| {
+        let (mut closer, odometry_3, closed_to) =
+            fly_with(&room, &image_3, &truth_3, config(), 1.0, |c, m| {
+                for (id, p) in true_poses {
+                    c.set_true_pose(*id, *p);
+                }
+                let mut deep = m.clone();
+                deep.scale_inv_depths(1.0 / 1.1);
+                c.attach_map(0, &deep);
+            });
+        assert_eq!(closed_to, Some(0), "{:?}", closer.stats());
+        let err = (closer.correction() * odometry_3).inverse() * truth_3;
+        let closures = closer.take_closures();
+        assert_eq!(closures.len(), 1);
+        (closures[0].t_old_new, err.translation.vector.norm())
+    };
+    let (measured, measured_err_m) = run(&[]);
+    let (given, given_err_m) = run(&[(0, a), (3, truth_3)]);
+    let (one_missing, one_missing_err_m) = run(&[(0, a)]);
+    let edge_err_m = |t: &Isometry3<f64>| (true_edge.inverse() * t).translation.vector.norm();
+    println!(
+        "loop edge error: measured on the deep map {:.4} m (keyframe 3 after it {measured_err_m:.4} m), \
+         true poses given {:.1e} m ({given_err_m:.4} m)",
+        edge_err_m(&measured),
+        edge_err_m(&given)
+    );
+    assert!(edge_err_m(&measured) > 0.01, "{measured}");
+    assert!(edge_err_m(&given) < 1e-12, "{given}");
+    assert!((true_edge.inverse() * given).rotation.angle() < 1e-12);
+    assert!(given_err_m < measured_err_m, "{given_err_m} m");
+    assert_eq!(one_missing, measured);
+    assert_eq!(one_missing_err_m, measured_err_m);
+}
+
 #[test]
 fn a_view_of_another_place_closes_nothing() {
     let room = Room::new();

@@ -954,7 +954,7 @@ fn ideal_flight() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| simulate_ideal("flight", None)).clone()
 }
-const IDEAL_FLIGHT_USERS: usize = 5;
+const IDEAL_FLIGHT_USERS: usize = 6;
 fn done_with_ideal_flight(dir: &std::path::Path) {
     static DONE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
     if DONE.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1 == IDEAL_FLIGHT_USERS {
@@ -1252,6 +1252,57 @@ fn a_speed_beyond_the_vehicles_fails_the_published_frames_while_it_lasts() {
     assert!(flagged > 0 && flagged < seen.len());
     assert_eq!(flagged, out.odometry.speed_fault_frames);
     assert_eq!(episodes, out.odometry.speed_faults);
+    done_with_ideal_flight(&dir);
+}
+
+/// `replay --loop-edges gt` (a diagnostic): on the laps of the built-in flight the loop closer
+/// finds its loops as always and puts each into the graph as its keyframes' true relative pose
+/// (every recorded edge within 1 nm and 1 nrad of the truth); a replay without a loop closer
+/// refuses it.
+#[test]
+fn loop_edges_set_to_the_truth_reach_the_loop_closer() {
+    let dir = ideal_flight();
+    let mut opts = ReplayOptions {
+        loop_edges_true: true,
+        ..Default::default()
+    };
+    opts.loop_closure.enabled = true;
+    let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let loops = &out.odometry.loop_closures;
+    let stats = out
+        .odometry
+        .loop_closure
+        .clone()
+        .expect("loop closure stats");
+    assert!(!loops.is_empty(), "{stats:?}");
+    let ds = AslDataset::open(&dir).unwrap();
+    let truth = TrueCameraPoses::new(
+        ds.ground_truth().unwrap().unwrap().trajectory(),
+        ds.camera.t_body_cam,
+    );
+    let errors = loop_edge_errors(loops, Some(&truth));
+    for e in &errors {
+        let e = e.expect("every loop within the ground truth");
+        assert!(e.edge_m < 1e-9 && e.edge_rad < 1e-9, "{e:?}");
+    }
+    let prior_m: Vec<f64> = errors.iter().flatten().map(|e| e.prior_m).collect();
+    println!(
+        "{} loops with true edges (the graph's predictions were up to {:.2} cm off); ATE {:.2} cm",
+        loops.len(),
+        prior_m.iter().copied().fold(0.0, f64::max) * 100.0,
+        eval_against_truth(&dir, &out).ate_rmse_m * 100.0
+    );
+    assert!(out.frames.iter().all(|f| f.state.is_finite()));
+    let mut no_closer = opts.clone();
+    no_closer.loop_closure.enabled = false;
+    let e = replay(&dir, &no_closer, &mut |_, _| {}).unwrap_err();
+    assert!(e.to_string().contains("--loop-edges gt"), "{e}");
+    let gt_depth = ReplayOptions {
+        depth: DepthSource::GroundTruth,
+        ..opts
+    };
+    let e = replay(&dir, &gt_depth, &mut |_, _| {}).unwrap_err();
+    assert!(e.to_string().contains("--loop-edges gt"), "{e}");
     done_with_ideal_flight(&dir);
 }
 

@@ -1,7 +1,7 @@
 //! `vidslam demo`: simulate the built-in flight, run the full odometry over it, evaluate.
 
 use super::mavlink::MavlinkOutputArgs;
-use super::replay::{DepthArg, MappingPosesArg, ReplayArgs, StartArg, run_with};
+use super::replay::{DepthArg, LoopEdgesArg, MappingPosesArg, ReplayArgs, StartArg, run_with};
 use crate::runtime::Config;
 use crate::sim::{ImuSource, SimConfig, TrajectorySource, generate};
 use anyhow::Context;
@@ -241,6 +241,7 @@ fn run_one(
         dir: data,
         depth: DepthArg::Semidense,
         mapping_poses: MappingPosesArg::Tracked,
+        loop_edges: LoopEdgesArg::Measured,
         start: StartArg::Static,
         realtime: a.realtime,
         out: out.join("replay"),

@@ -46,6 +46,13 @@ pub struct ReplayArgs {
     /// odometry's; measures what the triangulation poses cost (needs the ground truth).
     #[arg(long, value_enum, default_value = "tracked")]
     pub mapping_poses: MappingPosesArg,
+    /// The loop closer's edges. `measured`: each loop's relative pose as PnP measured it on the
+    /// old keyframe's map (the product). `gt`: a diagnostic — the loops are found and accepted as
+    /// always, then go into the graph with the keyframes' true relative pose (`loops.csv`
+    /// `edge_error_m` 0), so the run shows what the loop edges' errors cost (needs the ground
+    /// truth and `[loop_closure] enabled`).
+    #[arg(long, value_enum, default_value = "measured")]
+    pub loop_edges: LoopEdgesArg,
     /// First state of the full odometry: `static` detects the vehicle at rest (the product's
     /// way); `gt` takes the ground truth at the first frame (sequences that start in motion).
     #[arg(long, value_enum, default_value = "static")]
@@ -129,6 +136,14 @@ pub enum MappingPosesArg {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum LoopEdgesArg {
+    /// Measured by PnP on the old keyframe's map.
+    Measured,
+    /// The keyframes' true relative pose (diagnostic).
+    Gt,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum StartArg {
     Static,
     Gt,
@@ -162,6 +177,7 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
             DepthArg::Semidense => DepthSource::Semidense,
         },
         mapping_true_view_poses: a.mapping_poses == MappingPosesArg::Gt,
+        loop_edges_true: a.loop_edges == LoopEdgesArg::Gt,
         start: match a.start {
             StartArg::Static => StartMode::Static,
             StartArg::Gt => StartMode::GroundTruth,
@@ -230,6 +246,9 @@ pub fn run_with(a: &ReplayArgs, cfg: &Config) -> anyhow::Result<ReplayReport> {
     );
     if a.mapping_poses == MappingPosesArg::Gt {
         report.mapping_poses = "gt".into();
+    }
+    if a.loop_edges == LoopEdgesArg::Gt {
+        report.loop_edge_source = "gt".into();
     }
     let ds = AslDataset::open(&a.dir)?;
     let gt = ds.ground_truth()?;

@@ -276,7 +276,8 @@ pub struct LoopClosure {
     pub inliers: usize,
     pub inlier_ratio: f64,
     pub inlier_rms_px: f64,
-    /// The new camera's pose in the old camera's frame as measured (the loop edge)…
+    /// The new camera's pose in the old camera's frame as measured (the loop edge; the true one
+    /// with [`LoopCloser::set_true_pose`], a diagnostic)…
     pub t_old_new: Isometry3<f64>,
     /// …and as the graph predicted it before (the drift the loop corrects is between the two).
     pub prior_t_old_new: Isometry3<f64>,
@@ -336,6 +337,9 @@ pub struct LoopCloser {
     closures: Vec<LoopClosure>,
     /// A loop waiting for another to agree with it (`confirm_far_loops`).
     held: Option<HeldLoop>,
+    /// Diagnostic (`vidslam replay --loop-edges gt`): keyframes' true camera poses
+    /// ([`Self::set_true_pose`]); empty in the product.
+    true_poses: HashMap<u32, Isometry3<f64>>,
 }
 
 /// A loop edge measured (`confirm_far_loops`): waiting for another loop to agree with it, out
@@ -472,7 +476,26 @@ impl LoopCloser {
             stats: LoopClosureStats::default(),
             closures: Vec::new(),
             held: None,
+            true_poses: HashMap::new(),
         }
+    }
+
+    /// Diagnostic (`vidslam replay --loop-edges gt`), before [`Self::add_keyframe`] of the same
+    /// `id`: keyframe `id`'s true camera pose. A loop between two keyframes that both have one
+    /// is found and accepted as always (matches, PnP, the plausibility limits), then goes into
+    /// the graph — and into its [`LoopClosure`] record — with the true relative pose in place
+    /// of the measured one: what the loop edges' errors cost. Non-finite poses are ignored.
+    pub fn set_true_pose(&mut self, id: u32, t_world_cam: Isometry3<f64>) {
+        if crate::geometry::se3::is_finite(&t_world_cam) {
+            self.true_poses.insert(id, t_world_cam);
+        }
+    }
+
+    /// The new camera's true pose in the old camera's frame, if both have one
+    /// ([`Self::set_true_pose`]).
+    fn true_t_old_new(&self, old_id: u32, new_id: u32) -> Option<Isometry3<f64>> {
+        let (old, new) = (self.true_poses.get(&old_id)?, self.true_poses.get(&new_id)?);
+        Some(old.inverse() * new)
     }
 
     /// The loops closed since the last call, in order.
@@ -752,7 +775,8 @@ impl LoopCloser {
                 self.stats.loops_implausible += 1;
                 continue;
             }
-            let t_old_new = sol.t_query_ref.inverse();
+            let t_old_new =
+                (self.true_t_old_new(cid, id)).unwrap_or_else(|| sol.t_query_ref.inverse());
             let k = if self.cfg.loop_std_from_quality {
                 loop_quality_factor(sol.inlier_rms_px, sol.num_inliers, ratio)
             } else {

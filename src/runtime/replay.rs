@@ -67,6 +67,10 @@ pub struct ReplayOptions {
     /// Diagnostic of the full odometry: the mapper's views posed by the ground truth's motion
     /// from their keyframe ([`super::true_view_poses`]; needs the dataset's ground truth).
     pub mapping_true_view_poses: bool,
+    /// Diagnostic of the full odometry: every loop the loop closer finds goes into its graph with
+    /// the keyframes' true relative pose in place of the measured one (needs the dataset's ground
+    /// truth and `[loop_closure] enabled`): what the loop edges' errors cost.
+    pub loop_edges_true: bool,
     pub start: StartMode,
     /// Pace frames at their timestamps and never wait for the mapper (non-deterministic).
     pub realtime: bool,
@@ -135,6 +139,7 @@ impl Default for ReplayOptions {
             loop_closure: LoopClosureConfig::default(),
             depth: DepthSource::Semidense,
             mapping_true_view_poses: false,
+            loop_edges_true: false,
             start: StartMode::Static,
             realtime: false,
             max_seconds: None,
@@ -247,6 +252,15 @@ pub fn replay_observed(
             "--mapping-poses gt poses the semidense mapper's views; --depth gt has no mapper"
                 .into(),
         )),
+        DepthSource::GroundTruth if opts.loop_edges_true => Err(ReplayError::Input(
+            "--loop-edges gt sets the loop closer's edges; --depth gt has no loop closer".into(),
+        )),
+        DepthSource::Semidense if opts.loop_edges_true && !opts.loop_closure.enabled => {
+            Err(ReplayError::Input(
+                "--loop-edges gt sets the loop closer's edges; [loop_closure] enabled = false"
+                    .into(),
+            ))
+        }
         DepthSource::GroundTruth => replay_gt_depth(dir, opts, progress),
         DepthSource::Semidense => replay_full(dir, opts, progress, observer),
     }
@@ -318,15 +332,20 @@ fn replay_full(
 ) -> Result<ReplayOutput, ReplayError> {
     let ds = AslDataset::open(dir)?;
     // The ground truth is read once, for whichever option needs it.
-    let truth = match (opts.start, opts.mapping_true_view_poses) {
-        (StartMode::GroundTruth, _) => Some(required_ground_truth(&ds, "--start gt")?),
-        (StartMode::Static, true) => Some(required_ground_truth(&ds, "--mapping-poses gt")?),
-        (StartMode::Static, false) => None,
+    let truth = match opts.start {
+        StartMode::GroundTruth => Some(required_ground_truth(&ds, "--start gt")?),
+        _ if opts.mapping_true_view_poses => {
+            Some(required_ground_truth(&ds, "--mapping-poses gt")?)
+        }
+        _ if opts.loop_edges_true => Some(required_ground_truth(&ds, "--loop-edges gt")?),
+        StartMode::Static => None,
     };
-    let true_view_poses = truth
+    let true_poses = truth
         .as_ref()
-        .filter(|_| opts.mapping_true_view_poses)
+        .filter(|_| opts.mapping_true_view_poses || opts.loop_edges_true)
         .map(|g| Arc::new(TrueCameraPoses::new(g.trajectory(), ds.camera.t_body_cam)));
+    let true_view_poses = true_poses.clone().filter(|_| opts.mapping_true_view_poses);
+    let loop_true_camera_poses = true_poses.filter(|_| opts.loop_edges_true);
     let gt = truth.filter(|_| opts.start == StartMode::GroundTruth);
     let ReplayInput { imu, span, t0 } = ReplayInput::read(&ds, gt.as_ref(), opts.max_seconds)?;
     let cfg = OdometryConfig {
@@ -342,6 +361,7 @@ fn replay_full(
         loop_closure: opts.loop_closure.clone(),
         realtime: opts.realtime,
         mapping_true_view_poses: true_view_poses,
+        loop_true_camera_poses,
     };
     let rig = Rig {
         camera: ds.camera.model,

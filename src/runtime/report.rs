@@ -154,6 +154,9 @@ pub struct ReplayReport {
     /// Poses the mapper triangulated from: `tracked` (the product) or `gt` (`vidslam replay
     /// --mapping-poses gt`, a diagnostic).
     pub mapping_poses: String,
+    /// The loop closer's edges: `measured` (the product) or `gt` (`vidslam replay --loop-edges
+    /// gt`, a diagnostic: the keyframes' true relative poses).
+    pub loop_edge_source: String,
     /// Replayed paced at the camera's timestamps (`--realtime`): the background results arrived
     /// as late as this machine made them, so the figures are one sample of a timing-dependent run.
     pub realtime: bool,
@@ -545,6 +548,7 @@ impl ReplayReport {
             vision,
             depth: depth.to_string(),
             mapping_poses: "tracked".to_string(),
+            loop_edge_source: "measured".to_string(),
             realtime,
             tracking_fifo_priority: match &out.tracking_fifo {
                 Some(Ok(p)) => *p,

@@ -14,6 +14,12 @@ impl ReplayReport {
                 format!("{} (diagnostic, not the product)", self.mapping_poses),
             );
         }
+        if self.loop_edge_source != "measured" {
+            row(
+                "loop edges",
+                format!("{} (diagnostic, not the product)", self.loop_edge_source),
+            );
+        }
         row("frames in", self.frames_in.to_string());
         row("frames tracked", self.frames_tracked.to_string());
         row(
@@ -256,9 +262,14 @@ impl ReplayReport {
                 row(
                     "loop edges vs truth",
                     format!(
-                        "{} loops: measured edge error median {:.1} cm, max {:.1} cm, {:.2}° \
+                        "{} loops: {} edge error median {:.1} cm, max {:.1} cm, {:.2}° \
                          (the graph's prediction before them: median {:.1} cm)",
                         e.evaluated,
+                        if self.loop_edge_source == "measured" {
+                            "measured"
+                        } else {
+                            "true"
+                        },
                         e.edge_m_p50 * 100.0,
                         e.edge_m_max * 100.0,
                         e.edge_rad_max.to_degrees(),

@@ -15,6 +15,7 @@ use crate::geometry::se3;
 use crate::image::Image;
 use crate::loop_closure::closer::{LoopCloser, LoopClosure, LoopClosureConfig, LoopClosureStats};
 use crate::mapping::semidense::SemidenseMap;
+use crate::runtime::true_view_poses::TrueCameraPoses;
 use crate::time::TimeNs;
 use crate::tracking::Keyframe;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
@@ -40,6 +41,8 @@ enum LoopJob {
         t_world_cam: Isometry3<f64>,
         host: Option<(u32, Isometry3<f64>)>,
         image: Arc<Image<u8>>,
+        /// Its true camera pose (`--loop-edges gt`, a diagnostic).
+        true_pose: Option<Isometry3<f64>>,
     },
     Map {
         id: u32,
@@ -69,7 +72,11 @@ fn run(closer: &mut LoopCloser, job: LoopJob) {
             t_world_cam,
             host,
             image,
+            true_pose,
         } => {
+            if let Some(p) = true_pose {
+                closer.set_true_pose(id, p);
+            }
             closer.add_keyframe(id, &t_world_cam, host, &image);
         }
         LoopJob::Map { id, map } => closer.attach_map(id, &map),
@@ -130,10 +137,18 @@ pub(super) struct LoopLink {
     closures: Vec<LoopRecord>,
     /// The newest keyframe handed to the closer.
     newest: Option<u32>,
+    /// Diagnostic (`--loop-edges gt`): the truth whose relative poses replace the measured loop
+    /// edges ([`LoopCloser::set_true_pose`]); `None` in the product.
+    truth: Option<Arc<TrueCameraPoses>>,
 }
 
 impl LoopLink {
-    pub(super) fn new(cfg: &LoopClosureConfig, camera: CameraModel, realtime: bool) -> Self {
+    pub(super) fn new(
+        cfg: &LoopClosureConfig,
+        camera: CameraModel,
+        realtime: bool,
+        truth: Option<Arc<TrueCameraPoses>>,
+    ) -> Self {
         let closer = LoopCloser::new(cfg.clone(), camera);
         let runner = if realtime {
             let (jobs, job_rx) = bounded::<LoopJob>(QUEUE_LEN);
@@ -186,6 +201,7 @@ impl LoopLink {
             started: HashMap::new(),
             closures: Vec::new(),
             newest: None,
+            truth,
         }
     }
 
@@ -446,6 +462,7 @@ impl Odometry {
             t_world_cam,
             host: left.map(|l| (l.id, l.t_world_cam)),
             image: image.clone(),
+            true_pose: link.truth.as_ref().and_then(|tr| tr.camera_at(t)),
         });
     }
 }
@@ -469,7 +486,7 @@ mod tests {
     #[test]
     fn corrections_follow_the_keyframe_tracked_and_change_worlds_consistently() {
         let cfg = LoopClosureConfig::default();
-        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false, None);
         let (c1, c2) = (yawed(0.1, 0.5), yawed(-0.05, 0.2));
         link.by_keyframe.insert(1, c1);
         link.by_keyframe.insert(2, c2);
@@ -516,7 +533,7 @@ mod tests {
     #[test]
     fn a_keyframe_not_yet_in_the_graph_takes_its_hosts_correction() {
         let cfg = LoopClosureConfig::default();
-        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false, None);
         let (stored, newest) = (yawed(0.2, -0.6), yawed(-0.05, 0.2));
         link.by_keyframe.insert(3, stored);
         link.by_keyframe.insert(40, newest);
@@ -554,7 +571,7 @@ mod tests {
     #[test]
     fn the_keyframes_in_hindsight_are_their_poses_moved_by_their_corrections() {
         let cfg = LoopClosureConfig::default();
-        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false, None);
         let handed = [
             (7, 30, yawed(0.1, 1.0)),
             (5, 10, yawed(0.0, 0.0)),
@@ -587,7 +604,7 @@ mod tests {
             reset_min_jump_rad: 0.035,
             ..LoopClosureConfig::default()
         };
-        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false);
+        let mut link = LoopLink::new(&cfg, CameraModel::euroc_cam0(), false, None);
         let body = Vector3::new(1.0, 2.0, 1.0);
         let step = |x_m: f64| Isometry3::new(Vector3::new(x_m, 0.0, 0.0), Vector3::zeros());
         // 2 cm at a time: unsignalled at 2 and 4 cm, a reset at 6 cm, then again from there.

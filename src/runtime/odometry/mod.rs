@@ -246,6 +246,9 @@ pub struct OdometryConfig {
     /// Diagnostic: the mapper triangulates from the true motion from each keyframe
     /// ([`crate::runtime::true_view_poses`]); `None` in the product.
     pub mapping_true_view_poses: Option<Arc<TrueCameraPoses>>,
+    /// Diagnostic: the loop closer's edges are the true relative poses of the keyframes it
+    /// closes (`vidslam replay --loop-edges gt`); `None` in the product.
+    pub loop_true_camera_poses: Option<Arc<TrueCameraPoses>>,
 }
 
 /// A job sent to the refinement thread, awaited.
@@ -571,10 +574,10 @@ impl Odometry {
             kf_record: None,
             tracked_frames: VecDeque::new(),
             tracking_kf_image: None,
-            loop_closer: cfg
-                .loop_closure
-                .enabled
-                .then(|| LoopLink::new(&cfg.loop_closure, rig.camera, cfg.realtime)),
+            loop_closer: cfg.loop_closure.enabled.then(|| {
+                let truth = cfg.loop_true_camera_poses.clone();
+                LoopLink::new(&cfg.loop_closure, rig.camera, cfg.realtime, truth)
+            }),
             tracking_kf_adjusted: false,
             guessed: None,
             guessed_snapshot: None,
