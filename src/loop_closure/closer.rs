@@ -437,18 +437,30 @@ fn add_weak_until_confirmed(
     };
     let weak = !confirmed && edge.shift.beyond(c.confirm_beyond_m, c.confirm_beyond_rad);
     let f = if weak { c.confirm_weak_std_factor } else { 1.0 };
-    let noise = edge.noise.scaled(f);
-    let Ok(ix) = graph.add_loop_edge(edge.old_node, edge.new_node, &edge.t_old_new, noise) else {
+    let Some(ix) = add_to_graph(graph, stats, closures, &edge, edge.noise.scaled(f)) else {
         return false;
     };
-    stats.loops_closed += 1;
-    closures.push(edge.closure);
     if weak {
         stats.loops_held += 1;
         edge.edge_index = Some(ix);
         *held = Some(edge);
     }
     true
+}
+
+/// Loop `e`'s edge into the graph with the deviations `noise`, counted and recorded if it went
+/// in; its edge index.
+fn add_to_graph(
+    graph: &mut PoseGraph,
+    stats: &mut LoopClosureStats,
+    closures: &mut Vec<LoopClosure>,
+    e: &HeldLoop,
+    noise: EdgeNoise,
+) -> Option<usize> {
+    let ix = (graph.add_loop_edge(e.old_node, e.new_node, &e.t_old_new, noise)).ok()?;
+    stats.loops_closed += 1;
+    closures.push(e.closure);
+    Some(ix)
 }
 
 /// A held loop dropped unconfirmed: counted, and recorded as dropped.
@@ -830,14 +842,9 @@ impl LoopCloser {
                 );
                 let mut added = false;
                 for e in edges.into_iter().flatten() {
-                    if (self.graph)
-                        .add_loop_edge(e.old_node, e.new_node, &e.t_old_new, e.noise)
-                        .is_ok()
-                    {
-                        self.stats.loops_closed += 1;
-                        self.closures.push(e.closure);
-                        added = true;
-                    }
+                    let (graph, stats, closures) =
+                        (&mut self.graph, &mut self.stats, &mut self.closures);
+                    added |= add_to_graph(graph, stats, closures, &e, e.noise).is_some();
                 }
                 added
             };

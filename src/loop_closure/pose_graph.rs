@@ -1043,10 +1043,7 @@ mod tests {
         let (truth, odometry) = loop_trajectory(40, 1);
         let last = truth.len() - 1;
         let t_last_0 = truth[last].inv_mul(&truth[0]);
-        let weak = EdgeNoise {
-            yaw_std_rad: 10.0 * NOISE.yaw_std_rad,
-            position_std_m: 10.0 * NOISE.position_std_m,
-        };
+        let weak = NOISE.scaled(10.0);
         let solved = |noise: EdgeNoise, restore: bool| {
             let mut g = chain(&odometry);
             let before = g.loop_edge_count();

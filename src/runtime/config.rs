@@ -167,45 +167,59 @@ impl Config {
                 at("gyro_alignment", "initial_rotation_deg")
             ));
         }
-        let w = &self.window;
-        for (key, v, max) in [
-            ("map_scale_gain", w.map_scale_gain, 1.0),
-            ("map_scale_max_step", w.map_scale_max_step, 0.5),
-            ("stored_map_scale_gain", w.stored_map_scale_gain, 1.0),
+        let (w, l) = (&self.window, &self.loop_closure);
+        let pi = std::f64::consts::PI;
+        for (table, key, v, max) in [
+            ("window", "map_scale_gain", w.map_scale_gain, 1.0),
+            ("window", "map_scale_max_step", w.map_scale_max_step, 0.5),
             (
+                "window",
+                "stored_map_scale_gain",
+                w.stored_map_scale_gain,
+                1.0,
+            ),
+            (
+                "window",
                 "keep_across_rebuild_max_s",
                 w.keep_across_rebuild_max_s,
                 10.0,
             ),
-        ] {
-            if !(v.is_finite() && (0.0..=max).contains(&v)) {
-                return Err(format!(
-                    "{}[window] {key} = {v}: must be within 0 … {max}",
-                    at("window", key)
-                ));
-            }
-        }
-        let l = &self.loop_closure;
-        for (key, v, max) in [
-            ("confirm_beyond_m", l.confirm_beyond_m, 10.0),
+            ("loop_closure", "confirm_beyond_m", l.confirm_beyond_m, 10.0),
             (
+                "loop_closure",
                 "confirm_beyond_rad",
                 l.confirm_beyond_rad,
-                std::f64::consts::PI,
+                pi,
             ),
-            ("confirm_tolerance_m", l.confirm_tolerance_m, 10.0),
             (
+                "loop_closure",
+                "confirm_tolerance_m",
+                l.confirm_tolerance_m,
+                10.0,
+            ),
+            (
+                "loop_closure",
                 "confirm_tolerance_rad",
                 l.confirm_tolerance_rad,
-                std::f64::consts::PI,
+                pi,
             ),
-            ("confirm_tolerance_share", l.confirm_tolerance_share, 10.0),
-            ("confirm_weak_std_factor", l.confirm_weak_std_factor, 100.0),
+            (
+                "loop_closure",
+                "confirm_tolerance_share",
+                l.confirm_tolerance_share,
+                10.0,
+            ),
+            (
+                "loop_closure",
+                "confirm_weak_std_factor",
+                l.confirm_weak_std_factor,
+                100.0,
+            ),
         ] {
             if !(v.is_finite() && (0.0..=max).contains(&v)) {
                 return Err(format!(
-                    "{}[loop_closure] {key} = {v}: must be within 0 … {max}",
-                    at("loop_closure", key)
+                    "{}[{table}] {key} = {v}: must be within 0 … {max}",
+                    at(table, key)
                 ));
             }
         }
