@@ -954,7 +954,7 @@ fn ideal_flight() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| simulate_ideal("flight", None)).clone()
 }
-const IDEAL_FLIGHT_USERS: usize = 6;
+const IDEAL_FLIGHT_USERS: usize = 7;
 fn done_with_ideal_flight(dir: &std::path::Path) {
     static DONE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
     if DONE.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1 == IDEAL_FLIGHT_USERS {
@@ -1303,6 +1303,40 @@ fn loop_edges_set_to_the_truth_reach_the_loop_closer() {
     };
     let e = replay(&dir, &gt_depth, &mut |_, _| {}).unwrap_err();
     assert!(e.to_string().contains("--loop-edges gt"), "{e}");
+    done_with_ideal_flight(&dir);
+}
+
+/// `[window] skip_edges` on the built-in flight: new keyframes tracked on the newest one are
+/// aligned against the map two back (63 of 75 keyframes; the rest follow returns to stored
+/// keyframes), those whose alignment holds (32: the laps' fast turns leave half the map two back
+/// out of view) join the window by that length too, and the flight stays metric and finite (ATE
+/// 0.56 cm).
+#[test]
+fn skip_edges_join_the_keyframe_window_on_the_built_in_flight() {
+    let dir = ideal_flight();
+    let mut opts = ReplayOptions::default();
+    opts.window.skip_edges = true;
+    let out = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let (tried, joined) = (
+        out.odometry.window_skip_edges_tried,
+        out.odometry.window_skip_edges,
+    );
+    let e = eval_against_truth(&dir, &out);
+    println!(
+        "skip edges: {joined} joined of {tried} aligned, {} keyframes; ATE {:.2} cm",
+        out.odometry.keyframes,
+        e.ate_rmse_m * 100.0
+    );
+    assert!(joined > 0 && joined <= tried, "{joined} of {tried}");
+    assert!(
+        4 * joined >= out.odometry.keyframes,
+        "{joined} skip edges for {} keyframes",
+        out.odometry.keyframes
+    );
+    assert!(out.frames.iter().all(|f| f.state.is_finite()));
+    // The ideal flight is at 0.4–0.6 cm with the defaults: a broken skip edge (a wrong sign, a
+    // wrong map's scale) takes it off by decimetres.
+    assert!(e.ate_rmse_m < 0.03, "ATE {} m", e.ate_rmse_m);
     done_with_ideal_flight(&dir);
 }
 

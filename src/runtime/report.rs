@@ -113,6 +113,10 @@ pub struct ReplayReport {
     /// the window's newest keyframe by more than `[tracking]
     /// keyframe_max_velocity_divergence_m_s`.
     pub diverged_keyframes: usize,
+    /// Keyframes aligned against the map two back (`[window] skip_edges`), and those whose
+    /// alignment held and joined the keyframe window as a skip edge.
+    pub window_skip_edges_tried: usize,
+    pub window_skip_edges: usize,
     /// Stored keyframes that failed their probation while the keyframe left for them was out of
     /// view: a new keyframe was started instead of going back (`[reuse] return_min_overlap`).
     pub returns_out_of_view: usize,
@@ -511,6 +515,8 @@ impl ReplayReport {
             mapper_keyframe_build_ms_max: kf_build_ms.last().copied(),
             aged_keyframes: out.odometry.aged_keyframes,
             diverged_keyframes: out.odometry.diverged_keyframes,
+            window_skip_edges_tried: out.odometry.window_skip_edges_tried,
+            window_skip_edges: out.odometry.window_skip_edges,
             returns_out_of_view: out.odometry.returns_out_of_view,
             zero_velocity_updates: out.odometry.zero_velocity_updates,
             takeoff_scale_corrections: out.odometry.takeoff_scales.clone(),

@@ -202,6 +202,20 @@ pub struct WindowConfig {
     pub inflight_gyro_noise_intervals: usize,
     /// The factor read in flight is kept within 1 .. this.
     pub inflight_gyro_noise_max_scale: f64,
+    /// Skip edges: the new keyframe's image is aligned, by vision alone, against the map of the
+    /// keyframe two back (the window's second newest), and the length of that relative pose
+    /// joins the window as one more row ([`RelativePose::length_residual_scaled`], at that
+    /// map's λ as corrected when its successor was started). Along the chain the displacement
+    /// crosses two maps, on the skip edge one: the step of the maps' scale is read by the images,
+    /// which the IMU alone reads poorly (docs/odometry-log.md, *Where a keyframe interval's
+    /// displacement goes wrong*). Off: on S-V101 it keeps seeds 16 / 20's scale (0.409 / 0.165 →
+    /// 0.189 / 0.108 m) but seeds 1–10 go from a mean of 0.089 to 0.096 m (median 0.088 →
+    /// 0.085; seed 5 0.088 → 0.152); as a whole relative pose it ran three seeds away
+    /// (docs/odometry-log.md, *Skip edges in the keyframe window*, session 88).
+    pub skip_edges: bool,
+    /// A skip edge is kept only if its alignment keeps at least this fraction of its points as
+    /// inliers (in a fast turn the map two back is half out of view).
+    pub skip_min_inlier_ratio: f64,
 }
 
 impl Default for WindowConfig {
@@ -239,9 +253,15 @@ impl Default for WindowConfig {
             inflight_gyro_noise_min_intervals: 10,
             inflight_gyro_noise_intervals: 200,
             inflight_gyro_noise_max_scale: 10.0,
+            skip_edges: false,
+            skip_min_inlier_ratio: 0.5,
         }
     }
 }
+
+/// Huber threshold of a skip edge's length residual, in its standard deviations
+/// ([`KeyframeWindow::add_skip_length`]).
+const SKIP_HUBER_SIGMAS: f64 = 2.0;
 
 /// One keyframe of the window and the factors to its predecessor.
 #[derive(Clone, Debug)]
@@ -267,6 +287,10 @@ struct Node {
     imu: Option<Preintegration>,
     /// Relative pose previous → this, from tracking.
     visual: Option<RelativePose>,
+    /// Relative pose from the keyframe two back → this (`skip_edges`, read for its length only),
+    /// measured on that keyframe's map as it was after the predecessor's correction: at
+    /// `λ_{j−2} − c_{j−1}`.
+    skip: Option<RelativePose>,
 }
 
 /// Gaussian prior on the first `lin.len()` nodes: `E(δ) = ½ δᵀ H δ − gᵀ δ`, `δ = x ⊟ lin` (per
@@ -480,6 +504,7 @@ impl KeyframeWindow {
             new_map: false,
             imu: None,
             visual: None,
+            skip: None,
         });
     }
 
@@ -505,6 +530,31 @@ impl KeyframeWindow {
         if let Some(n) = self.nodes.back_mut() {
             n.visual_on_own_map = true;
         }
+    }
+
+    /// The keyframe two back from the newest, as `(id, state)` before a push (`skip_edges`: the
+    /// keyframe whose map the next keyframe is aligned against too), if the window has two.
+    pub fn second_newest(&self) -> Option<(u32, &FrameState)> {
+        let n = self.nodes.len();
+        (n >= 2).then(|| (self.nodes[n - 2].id, &self.nodes[n - 2].state))
+    }
+
+    /// Joins the newest keyframe to keyframe `from_id` two back by `rel`'s length (`skip_edges`),
+    /// if that is the keyframe two back and both steps between them were tracked on the
+    /// predecessor's map (not across a return to a stored keyframe or a rebuilt map). Returns
+    /// whether it was added.
+    pub fn set_newest_skip(&mut self, from_id: u32, rel: RelativePose) -> bool {
+        let n = self.nodes.len();
+        if !self.cfg.skip_edges || n < 3 || self.nodes[n - 3].id != from_id {
+            return false;
+        }
+        let chained =
+            |m: &Node| m.visual.is_some() && !m.visual_on_own_map && !m.new_map && m.imu.is_some();
+        if !(chained(&self.nodes[n - 2]) && chained(&self.nodes[n - 1])) {
+            return false;
+        }
+        self.nodes[n - 1].skip = Some(rel);
+        true
     }
 
     /// The map of the newest keyframe's predecessor was scaled by `e^{−c}` when the newest was
@@ -605,6 +655,7 @@ impl KeyframeWindow {
             new_map: false,
             imu: Some(imu),
             visual,
+            skip: None,
         });
     }
 
@@ -885,39 +936,11 @@ impl KeyframeWindow {
                 }
             }
             if let Some(vis) = &node.visual {
-                let mut w = self.visual_weight(&vis.information);
                 // The relative pose i → j was tracked against keyframe i's map (or, across a
                 // return, against the stored map that seeds j's).
                 let k_map = if node.visual_on_own_map { j } else { i };
                 let lk = x.log_scales[k_map];
-                let r = vis.residual_scaled(xi, xj, lk);
-                let (ji, jj, jl) = vis.jacobians_scaled(xi, xj, lk);
-                // Huber on the Mahalanobis norm (IRLS weight k/‖r‖ beyond k).
-                let s = r.dot(&(w * r));
-                let k = self.cfg.visual_huber_sigmas;
-                if k > 0.0 && s > k * k {
-                    let norm = s.sqrt();
-                    cost += 0.5 * (2.0 * k * norm - k * k);
-                    w *= k / norm;
-                } else {
-                    cost += 0.5 * s;
-                }
-                add_pair(&mut h, &mut rhs, b * i, b * j, &ji, &jj, &w, &r);
-                if self.cfg.map_scale {
-                    // λ's column of the same factor.
-                    let (oi, oj, ol) = (b * i, b * j, b * k_map + 15);
-                    let wl = w * jl;
-                    h[(ol, ol)] += jl.dot(&wl);
-                    let hli = ji.transpose() * wl;
-                    let hlj = jj.transpose() * wl;
-                    for c in 0..15 {
-                        h[(oi + c, ol)] += hli[c];
-                        h[(ol, oi + c)] += hli[c];
-                        h[(oj + c, ol)] += hlj[c];
-                        h[(ol, oj + c)] += hlj[c];
-                    }
-                    rhs[ol] -= wl.dot(&r);
-                }
+                cost += self.add_visual(&mut h, &mut rhs, vis, (i, j, k_map), states, lk);
             }
             if self.cfg.map_scale {
                 // The random walk of the map's scale from keyframe i to j.
@@ -940,7 +963,127 @@ impl KeyframeWindow {
                 rhs[lj] -= w * r;
             }
         }
+        // Skip edges (`skip_edges`): node j's relative pose from node j − 2, on j − 2's map as
+        // corrected when j − 1 was started. (When marginalising, `factor_nodes` = 2: only the
+        // one of node 2 touches node 0.)
+        for j in 2..(factor_nodes + 1).min(n) {
+            let node = &self.nodes[j];
+            if let Some(vis) = &node.skip {
+                let i = j - 2;
+                let lk = x.log_scales[i] - self.nodes[i + 1].scale_correction;
+                cost += self.add_skip_length(&mut h, &mut rhs, vis, (i, j), states, lk);
+            }
+        }
         (h, rhs, cost)
+    }
+
+    /// Adds skip edge `vis` from node `i` to node `j` as its length only
+    /// ([`RelativePose::length_residual_scaled`] at log-scale `lk` of node `i`'s map): one row,
+    /// weighed by the tempered translation variance of the alignment along the baseline
+    /// ([`Self::visual_weight`]), Huber beyond [`SKIP_HUBER_SIGMAS`]; returns its cost. The
+    /// edge's direction and rotation are left out: as a whole relative pose it doubled vision's
+    /// weight in the window and its far-off alignments in fast turns ran flights away
+    /// (docs/odometry-log.md, session 88).
+    fn add_skip_length(
+        &self,
+        h: &mut DMatrix<f64>,
+        rhs: &mut DVector<f64>,
+        vis: &RelativePose,
+        (i, j): (usize, usize),
+        states: &[FrameState],
+        lk: f64,
+    ) -> f64 {
+        let b = self.block();
+        let (xi, xj) = (&states[i], &states[j]);
+        let (ji, jj, jl) = vis.length_jacobians_scaled(xi, xj);
+        if jl == 0.0 {
+            return 0.0;
+        }
+        let Some(cov) = self.visual_weight(&vis.information).try_inverse() else {
+            return 0.0;
+        };
+        // The baseline's direction in frame j's body (the information is on its increment).
+        let d = xj.nav.p_world_m - xi.nav.p_world_m;
+        let u = xj.nav.r_world_body.inverse() * d.normalize();
+        let ctt: Matrix3<f64> = cov.fixed_view::<3, 3>(3, 3).into_owned();
+        let var_m2 = u.dot(&(ctt * u));
+        if !(var_m2.is_finite() && var_m2 > 0.0) {
+            return 0.0;
+        }
+        let t_m = vis.t_i_j.translation.vector.norm();
+        let r = vis.length_residual_scaled(xi, xj, lk);
+        let mut w = t_m * t_m / var_m2;
+        let k = SKIP_HUBER_SIGMAS;
+        let s = r * r * w;
+        let cost = if s > k * k {
+            let norm = s.sqrt();
+            w *= k / norm;
+            0.5 * (2.0 * k * norm - k * k)
+        } else {
+            0.5 * s
+        };
+        let wm = SMatrix::<f64, 1, 1>::new(w);
+        let rv = SVector::<f64, 1>::new(r);
+        add_pair(h, rhs, b * i, b * j, &ji, &jj, &wm, &rv);
+        if self.cfg.map_scale {
+            // λ's column of the same row.
+            let (oi, oj, ol) = (b * i, b * j, b * i + 15);
+            h[(ol, ol)] += jl * w * jl;
+            for c in 0..15 {
+                h[(oi + c, ol)] += ji[(0, c)] * w * jl;
+                h[(ol, oi + c)] += ji[(0, c)] * w * jl;
+                h[(oj + c, ol)] += jj[(0, c)] * w * jl;
+                h[(ol, oj + c)] += jj[(0, c)] * w * jl;
+            }
+            rhs[ol] -= jl * w * r;
+        }
+        cost
+    }
+
+    /// Adds relative pose `vis` between nodes `i` and `j`, measured on node `k_map`'s map at
+    /// log-scale `lk`, to `h` and `rhs` (Huber-weighted, tempered by [`Self::visual_weight`]);
+    /// returns its cost.
+    fn add_visual(
+        &self,
+        h: &mut DMatrix<f64>,
+        rhs: &mut DVector<f64>,
+        vis: &RelativePose,
+        (i, j, k_map): (usize, usize, usize),
+        states: &[FrameState],
+        lk: f64,
+    ) -> f64 {
+        let b = self.block();
+        let (xi, xj) = (&states[i], &states[j]);
+        let mut w = self.visual_weight(&vis.information);
+        let r = vis.residual_scaled(xi, xj, lk);
+        let (ji, jj, jl) = vis.jacobians_scaled(xi, xj, lk);
+        // Huber on the Mahalanobis norm (IRLS weight k/‖r‖ beyond k).
+        let s = r.dot(&(w * r));
+        let k = self.cfg.visual_huber_sigmas;
+        let cost = if k > 0.0 && s > k * k {
+            let norm = s.sqrt();
+            w *= k / norm;
+            0.5 * (2.0 * k * norm - k * k)
+        } else {
+            0.5 * s
+        };
+        add_pair(h, rhs, b * i, b * j, &ji, &jj, &w, &r);
+        if self.cfg.map_scale {
+            // λ's column of the same factor.
+            let (oi, oj, ol) = (b * i, b * j, b * k_map + 15);
+            let wl = w * jl;
+            h[(ol, ol)] += jl.dot(&wl);
+            let hli = ji.transpose() * wl;
+            let hlj = jj.transpose() * wl;
+            for c in 0..15 {
+                h[(oi + c, ol)] += hli[c];
+                h[(ol, oi + c)] += hli[c];
+                h[(oj + c, ol)] += hlj[c];
+                h[(ol, oj + c)] += hlj[c];
+            }
+            rhs[ol] -= wl.dot(&r);
+        }
+        cost
     }
 
     /// `S H S` with `S` = √scale of the rotation and translation rows.
@@ -980,6 +1123,9 @@ impl KeyframeWindow {
         let Some((hp, gp)) = schur_complement(&h, &rhs, b) else {
             // Degenerate: drop the node without information (φ keeps a prior about its value).
             self.nodes.pop_front();
+            if let Some(n1) = self.nodes.get_mut(1) {
+                n1.skip = None;
+            }
             self.prior = (e == 3).then(|| Prior {
                 h: DMatrix::from_column_slice(3, 3, self.phi_prior_h(&x.states[1]).as_slice()),
                 g: DVector::zeros(3),
@@ -993,6 +1139,10 @@ impl KeyframeWindow {
         self.nodes.pop_front();
         self.nodes[0].imu = None;
         self.nodes[0].visual = None;
+        self.nodes[0].skip = None;
+        if let Some(n1) = self.nodes.get_mut(1) {
+            n1.skip = None;
+        }
         self.prior = Some(Prior {
             h: hp,
             g: gp,

@@ -13,6 +13,11 @@ use nalgebra::{Isometry3, Matrix3, Matrix6, SMatrix, Vector3, Vector6};
 
 /// 6x15 Jacobian of the relative-pose residual w.r.t. one frame's 15-state increment.
 pub type Jacobian6x15 = SMatrix<f64, 6, 15>;
+/// 1x15 Jacobian of the length residual w.r.t. one frame's 15-state increment.
+pub type Jacobian1x15 = SMatrix<f64, 1, 15>;
+
+/// Below this length (m) a translation has no direction to read a scale along.
+const MIN_LENGTH_M: f64 = 1e-3;
 
 /// A measured relative body pose `T_i⁻¹ T_j` with its information (on `[δθ, δt]` of frame j).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -95,6 +100,41 @@ impl RelativePose {
         jl.fixed_rows_mut::<3>(3)
             .copy_from(&(rz.transpose() * t_rel));
         (ji, jj, jl)
+    }
+
+    /// The measured translation's length against the two frames' distance at map scale `e^λ`:
+    /// `r = ln|t_z| − λ − ln|p_j − p_i|` — the relative pose read for its map's scale only (the
+    /// keyframe window's skip edges, `[window] skip_edges`). Zero for a degenerate length.
+    pub fn length_residual_scaled(&self, xi: &FrameState, xj: &FrameState, log_scale: f64) -> f64 {
+        let d_m = (xj.nav.p_world_m - xi.nav.p_world_m).norm();
+        let t_m = self.t_i_j.translation.vector.norm();
+        if d_m < MIN_LENGTH_M || t_m < MIN_LENGTH_M {
+            return 0.0;
+        }
+        t_m.ln() - log_scale - d_m.ln()
+    }
+
+    /// Jacobians of [`RelativePose::length_residual_scaled`] w.r.t. the increments of frames i
+    /// and j (only the position columns are non-zero: `p ← p + R δt` moves `ln|d|` by
+    /// `dᵀ R δt / |d|²`) and w.r.t. λ (−1). Zero for a degenerate length.
+    pub fn length_jacobians_scaled(
+        &self,
+        xi: &FrameState,
+        xj: &FrameState,
+    ) -> (Jacobian1x15, Jacobian1x15, f64) {
+        let d = xj.nav.p_world_m - xi.nav.p_world_m;
+        let d2 = d.norm_squared();
+        let (mut ji, mut jj) = (Jacobian1x15::zeros(), Jacobian1x15::zeros());
+        if d2.sqrt() < MIN_LENGTH_M || self.t_i_j.translation.vector.norm() < MIN_LENGTH_M {
+            return (ji, jj, 0.0);
+        }
+        let gi = rot(xi).transpose() * d / d2;
+        let gj = -(rot(xj).transpose() * d) / d2;
+        for c in 0..3 {
+            ji[(0, 3 + c)] = gi[c];
+            jj[(0, 3 + c)] = gj[c];
+        }
+        (ji, jj, -1.0)
     }
 }
 
@@ -191,5 +231,52 @@ mod tests {
         assert!((ji - ni).abs().max() < 1e-6, "d/di\n{ji}\nnumeric\n{ni}");
         assert!((jj - nj).abs().max() < 1e-6, "d/dj\n{jj}\nnumeric\n{nj}");
         assert!((jl - nl).abs().max() < 1e-6, "d/dλ\n{jl}\nnumeric\n{nl}");
+    }
+
+    #[test]
+    fn the_length_residual_reads_the_map_scale_and_its_jacobians_match_numeric() {
+        let xi = state(Vector3::new(0.3, -0.2, 1.1), Vector3::new(1.0, -2.0, 0.5));
+        let xj = state(Vector3::new(0.1, 0.25, 0.9), Vector3::new(1.4, -1.7, 0.6));
+        let exact =
+            Isometry3::from_parts(Translation3::from(xi.nav.p_world_m), xi.nav.r_world_body)
+                .inverse()
+                * Isometry3::from_parts(Translation3::from(xj.nav.p_world_m), xj.nav.r_world_body);
+        // Tracked against a map 8 % too large, its direction and rotation off: only the length
+        // counts.
+        let mut z = RelativePose {
+            t_i_j: exact * Isometry3::new(Vector3::zeros(), Vector3::new(0.05, -0.02, 0.03)),
+            information: Matrix6::identity(),
+        };
+        let turned = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.2, -0.1));
+        z.t_i_j.translation.vector = turned * exact.translation.vector * 1.08;
+        let lambda = 1.08f64.ln();
+        assert!(z.length_residual_scaled(&xi, &xj, lambda).abs() < 1e-12);
+        assert!((z.length_residual_scaled(&xi, &xj, 0.0) - lambda).abs() < 1e-12);
+        let l = 0.03;
+        let (ji, jj, jl) = z.length_jacobians_scaled(&xi, &xj);
+        let numeric1 = |f: &dyn Fn(&Vector15) -> f64| {
+            let h = 1e-7;
+            Jacobian1x15::from_fn(|_, c| {
+                let mut d = Vector15::zeros();
+                d[c] = h;
+                let a = f(&d);
+                d[c] = -h;
+                (a - f(&d)) / (2.0 * h)
+            })
+        };
+        let ni = numeric1(&|d| z.length_residual_scaled(&xi.boxplus(d), &xj, l));
+        let nj = numeric1(&|d| z.length_residual_scaled(&xi, &xj.boxplus(d), l));
+        let h = 1e-7;
+        let nl = (z.length_residual_scaled(&xi, &xj, l + h)
+            - z.length_residual_scaled(&xi, &xj, l - h))
+            / (2.0 * h);
+        assert!((ji - ni).abs().max() < 1e-6, "d/di\n{ji}\nnumeric\n{ni}");
+        assert!((jj - nj).abs().max() < 1e-6, "d/dj\n{jj}\nnumeric\n{nj}");
+        assert!((jl - nl).abs() < 1e-6, "d/dλ {jl}, numeric {nl}");
+        // A zero-length measurement reads nothing.
+        let mut still = z;
+        still.t_i_j.translation.vector = Vector3::zeros();
+        assert_eq!(still.length_residual_scaled(&xi, &xj, l), 0.0);
+        assert_eq!(still.length_jacobians_scaled(&xi, &xj).2, 0.0);
     }
 }

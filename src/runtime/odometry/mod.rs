@@ -109,6 +109,7 @@ mod loop_log;
 mod mapper_link;
 mod refinement_jobs;
 mod reinit_shape;
+mod skip_link;
 mod stats;
 mod velocity_divergence;
 mod window_link;
@@ -390,6 +391,8 @@ pub struct Odometry {
     tracked_frames: VecDeque<(MapFrame, FrameState)>,
     /// The image of the keyframe tracked against.
     tracking_kf_image: Option<Arc<Image<u8>>>,
+    /// The keyframe window's skip edges (`[window] skip_edges`).
+    skip: skip_link::SkipEdges,
     /// The loop closer (`[loop_closure] enabled`), fed with every new keyframe and every map
     /// left; its correction is applied to the published pose only.
     loop_closer: Option<LoopLink>,
@@ -574,6 +577,7 @@ impl Odometry {
             kf_record: None,
             tracked_frames: VecDeque::new(),
             tracking_kf_image: None,
+            skip: Default::default(),
             loop_closer: cfg.loop_closure.enabled.then(|| {
                 let truth = cfg.loop_true_camera_poses.clone();
                 LoopLink::new(&cfg.loop_closure, rig.camera, cfg.realtime, truth)
@@ -956,7 +960,7 @@ impl Odometry {
                 {
                     // (A keyframe already pending in the mapper is awaited, not replaced.)
                     let mut frame = frame.clone();
-                    if let Some(c) = self.window_keyframe(&mut result) {
+                    if let Some(c) = self.window_keyframe(&mut result, &image) {
                         frame.t_world_cam = c * frame.t_world_cam;
                         for h in self.history.iter_mut() {
                             h.t_world_cam = c * h.t_world_cam;

@@ -122,6 +122,9 @@ pub struct OdometryStats {
     /// disagree (S-V101's real IMU 1.9 cm median, its path with the simulator's IMU 0.5 cm;
     /// docs/odometry-log.md, session 74).
     pub window_present_moves_m: Vec<f64>,
+    /// Skip edges aligned (`[window] skip_edges`), and those joined to the window.
+    pub window_skip_edges_tried: usize,
+    pub window_skip_edges: usize,
     /// `[window] inflight_gyro_noise`: keyframe intervals the gyro's noise was read over, the
     /// last median reading (the gyro's error over its modelled density: 1 = as modelled), and
     /// each factor applied to the back end's IMU rotations from it, as (time, the median reading

@@ -84,7 +84,11 @@ impl Odometry {
     /// moves the tracker's keyframe and state onto the solution. Returns the world correction
     /// applied to the current frame (`T_new = C · T_old`), `None` if the window is off or could
     /// not be used.
-    pub(super) fn window_keyframe(&mut self, result: &mut TrackResult) -> Option<Isometry3<f64>> {
+    pub(super) fn window_keyframe(
+        &mut self,
+        result: &mut TrackResult,
+        image: &Image<u8>,
+    ) -> Option<Isometry3<f64>> {
         let id = self.next_kf_id;
         if !self.cfg.window.enabled {
             return None;
@@ -136,8 +140,16 @@ impl Odometry {
         if tracked_newest && let Some(v) = &visual {
             self.read_gyro_noise(&pre, &v.t_i_j, &result.photometric_step, t);
         }
+        let skip = tracked_newest
+            .then(|| self.measure_skip_edge(result, image))
+            .flatten();
         let old = result.state;
         self.window.push(id, old, pre, visual);
+        if let Some((from, rel)) = skip
+            && self.window.set_newest_skip(from, rel)
+        {
+            self.stats.window_skip_edges += 1;
+        }
         self.correct_stored_map_scales();
         if across_return {
             self.window.set_newest_visual_on_own_map();
