@@ -209,9 +209,9 @@ pub struct WindowConfig {
     /// crosses two maps, on the skip edge one: the step of the maps' scale is read by the images,
     /// which the IMU alone reads poorly (docs/odometry-log.md, *Where a keyframe interval's
     /// displacement goes wrong*). Off: on S-V101 it keeps seeds 16 / 20's scale (0.409 / 0.165 →
-    /// 0.189 / 0.108 m) but seeds 1–10 go from a mean of 0.089 to 0.096 m (median 0.088 →
-    /// 0.085; seed 5 0.088 → 0.152); as a whole relative pose it ran three seeds away
-    /// (docs/odometry-log.md, *Skip edges in the keyframe window*, session 88).
+    /// 0.191 / 0.090 m) but seeds 1–10 go from a mean of 0.089 to 0.094 m (six worse, two
+    /// better); as a whole relative pose it ran three seeds away (docs/odometry-log.md, *Skip
+    /// edges in the keyframe window*, session 88).
     pub skip_edges: bool,
     /// A skip edge is kept only if its alignment keeps at least this fraction of its points as
     /// inliers (in a fast turn the map two back is half out of view).
