@@ -157,9 +157,23 @@ mod tests {
         }
     }
 
-    fn numeric(f: impl Fn(&Vector15) -> Vector6<f64>) -> Jacobian6x15 {
+    /// Two frames apart in position and attitude, and the relative pose `T_i⁻¹ T_j` between them.
+    fn two_frames() -> (FrameState, FrameState, Isometry3<f64>) {
+        let xi = state(Vector3::new(0.3, -0.2, 1.1), Vector3::new(1.0, -2.0, 0.5));
+        let xj = state(Vector3::new(0.1, 0.25, 0.9), Vector3::new(1.4, -1.7, 0.6));
+        let pose = |x: &FrameState| {
+            Isometry3::from_parts(Translation3::from(x.nav.p_world_m), x.nav.r_world_body)
+        };
+        let t_i_j = pose(&xi).inverse() * pose(&xj);
+        (xi, xj, t_i_j)
+    }
+
+    /// Central differences of `f` (R rows) w.r.t. a frame's 15-state increment.
+    fn numeric_rows<const R: usize>(
+        f: impl Fn(&Vector15) -> SMatrix<f64, R, 1>,
+    ) -> SMatrix<f64, R, 15> {
         let h = 1e-7;
-        Jacobian6x15::from_fn(|r, c| {
+        SMatrix::<f64, R, 15>::from_fn(|r, c| {
             let mut d = Vector15::zeros();
             d[c] = h;
             let a = f(&d);
@@ -168,14 +182,15 @@ mod tests {
         })
     }
 
+    fn numeric(f: impl Fn(&Vector15) -> Vector6<f64>) -> Jacobian6x15 {
+        numeric_rows(f)
+    }
+
     #[test]
     fn residual_vanishes_at_the_measurement_and_jacobians_match_numeric() {
-        let xi = state(Vector3::new(0.3, -0.2, 1.1), Vector3::new(1.0, -2.0, 0.5));
-        let xj = state(Vector3::new(0.1, 0.25, 0.9), Vector3::new(1.4, -1.7, 0.6));
+        let (xi, xj, t_i_j) = two_frames();
         let exact = RelativePose {
-            t_i_j: Isometry3::from_parts(Translation3::from(xi.nav.p_world_m), xi.nav.r_world_body)
-                .inverse()
-                * Isometry3::from_parts(Translation3::from(xj.nav.p_world_m), xj.nav.r_world_body),
+            t_i_j,
             information: Matrix6::identity(),
         };
         assert!(exact.residual(&xi, &xj).norm() < 1e-12);
@@ -197,12 +212,7 @@ mod tests {
 
     #[test]
     fn the_scaled_residual_vanishes_at_the_scaled_measurement_and_its_jacobians_match_numeric() {
-        let xi = state(Vector3::new(0.3, -0.2, 1.1), Vector3::new(1.0, -2.0, 0.5));
-        let xj = state(Vector3::new(0.1, 0.25, 0.9), Vector3::new(1.4, -1.7, 0.6));
-        let exact =
-            Isometry3::from_parts(Translation3::from(xi.nav.p_world_m), xi.nav.r_world_body)
-                .inverse()
-                * Isometry3::from_parts(Translation3::from(xj.nav.p_world_m), xj.nav.r_world_body);
+        let (xi, xj, exact) = two_frames();
         // Tracked against a map 8 % too large.
         let lambda = 1.08f64.ln();
         let mut scaled = exact;
@@ -235,12 +245,7 @@ mod tests {
 
     #[test]
     fn the_length_residual_reads_the_map_scale_and_its_jacobians_match_numeric() {
-        let xi = state(Vector3::new(0.3, -0.2, 1.1), Vector3::new(1.0, -2.0, 0.5));
-        let xj = state(Vector3::new(0.1, 0.25, 0.9), Vector3::new(1.4, -1.7, 0.6));
-        let exact =
-            Isometry3::from_parts(Translation3::from(xi.nav.p_world_m), xi.nav.r_world_body)
-                .inverse()
-                * Isometry3::from_parts(Translation3::from(xj.nav.p_world_m), xj.nav.r_world_body);
+        let (xi, xj, exact) = two_frames();
         // Tracked against a map 8 % too large, its direction and rotation off: only the length
         // counts.
         let mut z = RelativePose {
@@ -254,18 +259,11 @@ mod tests {
         assert!((z.length_residual_scaled(&xi, &xj, 0.0) - lambda).abs() < 1e-12);
         let l = 0.03;
         let (ji, jj, jl) = z.length_jacobians_scaled(&xi, &xj);
-        let numeric1 = |f: &dyn Fn(&Vector15) -> f64| {
-            let h = 1e-7;
-            Jacobian1x15::from_fn(|_, c| {
-                let mut d = Vector15::zeros();
-                d[c] = h;
-                let a = f(&d);
-                d[c] = -h;
-                (a - f(&d)) / (2.0 * h)
-            })
-        };
-        let ni = numeric1(&|d| z.length_residual_scaled(&xi.boxplus(d), &xj, l));
-        let nj = numeric1(&|d| z.length_residual_scaled(&xi, &xj.boxplus(d), l));
+        let one = |v: f64| SMatrix::<f64, 1, 1>::new(v);
+        let ni: Jacobian1x15 =
+            numeric_rows(|d| one(z.length_residual_scaled(&xi.boxplus(d), &xj, l)));
+        let nj: Jacobian1x15 =
+            numeric_rows(|d| one(z.length_residual_scaled(&xi, &xj.boxplus(d), l)));
         let h = 1e-7;
         let nl = (z.length_residual_scaled(&xi, &xj, l + h)
             - z.length_residual_scaled(&xi, &xj, l - h))
