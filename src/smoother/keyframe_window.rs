@@ -1011,31 +1011,14 @@ impl KeyframeWindow {
             return 0.0;
         }
         let t_m = vis.t_i_j.translation.vector.norm();
-        let r = vis.length_residual_scaled(xi, xj, lk);
-        let mut w = t_m * t_m / var_m2;
-        let k = SKIP_HUBER_SIGMAS;
-        let s = r * r * w;
-        let cost = if s > k * k {
-            let norm = s.sqrt();
-            w *= k / norm;
-            0.5 * (2.0 * k * norm - k * k)
-        } else {
-            0.5 * s
-        };
-        let wm = SMatrix::<f64, 1, 1>::new(w);
-        let rv = SVector::<f64, 1>::new(r);
-        add_pair(h, rhs, b * i, b * j, &ji, &jj, &wm, &rv);
+        let r = SVector::<f64, 1>::new(vis.length_residual_scaled(xi, xj, lk));
+        let mut w = SMatrix::<f64, 1, 1>::new(t_m * t_m / var_m2);
+        let (cost, f) = huber(r[0] * r[0] * w[(0, 0)], SKIP_HUBER_SIGMAS);
+        w *= f;
+        add_pair(h, rhs, b * i, b * j, &ji, &jj, &w, &r);
         if self.cfg.map_scale {
-            // λ's column of the same row.
-            let (oi, oj, ol) = (b * i, b * j, b * i + 15);
-            h[(ol, ol)] += jl * w * jl;
-            for c in 0..15 {
-                h[(oi + c, ol)] += ji[(0, c)] * w * jl;
-                h[(ol, oi + c)] += ji[(0, c)] * w * jl;
-                h[(oj + c, ol)] += jj[(0, c)] * w * jl;
-                h[(ol, oj + c)] += jj[(0, c)] * w * jl;
-            }
-            rhs[ol] -= jl * w * r;
+            let jl = SVector::<f64, 1>::new(jl);
+            add_scale_column(h, rhs, (b * i, b * j, b * i + 15), (&ji, &jj, &jl), &w, &r);
         }
         cost
     }
@@ -1057,31 +1040,18 @@ impl KeyframeWindow {
         let mut w = self.visual_weight(&vis.information);
         let r = vis.residual_scaled(xi, xj, lk);
         let (ji, jj, jl) = vis.jacobians_scaled(xi, xj, lk);
-        // Huber on the Mahalanobis norm (IRLS weight k/‖r‖ beyond k).
-        let s = r.dot(&(w * r));
-        let k = self.cfg.visual_huber_sigmas;
-        let cost = if k > 0.0 && s > k * k {
-            let norm = s.sqrt();
-            w *= k / norm;
-            0.5 * (2.0 * k * norm - k * k)
-        } else {
-            0.5 * s
-        };
+        let (cost, f) = huber(r.dot(&(w * r)), self.cfg.visual_huber_sigmas);
+        w *= f;
         add_pair(h, rhs, b * i, b * j, &ji, &jj, &w, &r);
         if self.cfg.map_scale {
-            // λ's column of the same factor.
-            let (oi, oj, ol) = (b * i, b * j, b * k_map + 15);
-            let wl = w * jl;
-            h[(ol, ol)] += jl.dot(&wl);
-            let hli = ji.transpose() * wl;
-            let hlj = jj.transpose() * wl;
-            for c in 0..15 {
-                h[(oi + c, ol)] += hli[c];
-                h[(ol, oi + c)] += hli[c];
-                h[(oj + c, ol)] += hlj[c];
-                h[(ol, oj + c)] += hlj[c];
-            }
-            rhs[ol] -= wl.dot(&r);
+            add_scale_column(
+                h,
+                rhs,
+                (b * i, b * j, b * k_map + 15),
+                (&ji, &jj, &jl),
+                &w,
+                &r,
+            );
         }
         cost
     }
@@ -1307,6 +1277,45 @@ fn add_pair<const R: usize>(
     h.view_mut((oj, oi), (15, 15)).add_assign(&hij.transpose());
     rhs.rows_mut(oi, 15).add_assign(&(-(ji.transpose() * wr)));
     rhs.rows_mut(oj, 15).add_assign(&(-(jj.transpose() * wr)));
+}
+
+/// Huber on a factor's squared Mahalanobis norm `s` with threshold `k` sigmas (0 = none): its
+/// cost and the factor its weight is multiplied by (IRLS weight `k/‖r‖` beyond `k`, else 1).
+fn huber(s: f64, k: f64) -> (f64, f64) {
+    if k > 0.0 && s > k * k {
+        let norm = s.sqrt();
+        (0.5 * (2.0 * k * norm - k * k), k / norm)
+    } else {
+        (0.5 * s, 1.0)
+    }
+}
+
+/// The map log-scale λ's column (row `ol`) of a factor between the states at rows `oi` and `oj`
+/// (Jacobians `ji`, `jj`, `jl` w.r.t. them and λ, weight `w`, residual `r`), added to `h` and
+/// `rhs` beside what [`add_pair`] adds for the states.
+fn add_scale_column<const R: usize>(
+    h: &mut DMatrix<f64>,
+    rhs: &mut DVector<f64>,
+    (oi, oj, ol): (usize, usize, usize),
+    (ji, jj, jl): (
+        &nalgebra::SMatrix<f64, R, 15>,
+        &nalgebra::SMatrix<f64, R, 15>,
+        &SVector<f64, R>,
+    ),
+    w: &nalgebra::SMatrix<f64, R, R>,
+    r: &SVector<f64, R>,
+) {
+    let wl = w * jl;
+    h[(ol, ol)] += jl.dot(&wl);
+    let hli = ji.transpose() * wl;
+    let hlj = jj.transpose() * wl;
+    for c in 0..15 {
+        h[(oi + c, ol)] += hli[c];
+        h[(ol, oi + c)] += hli[c];
+        h[(oj + c, ol)] += hlj[c];
+        h[(ol, oj + c)] += hlj[c];
+    }
+    rhs[ol] -= wl.dot(r);
 }
 
 #[cfg(test)]

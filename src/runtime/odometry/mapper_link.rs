@@ -541,10 +541,10 @@ impl Odometry {
         let (new_id, new_t, new_pose) = (kf.id, kf.t, kf.t_world_cam);
         // A refresh of the same keyframe keeps the brightness estimate.
         let previous = self.tracker.set_keyframe(kf);
-        if is_new && self.cfg.window.skip_edges {
-            self.skip.left(previous.as_ref());
-        }
         if is_new {
+            if self.cfg.window.skip_edges {
+                self.skip.left(previous.as_ref());
+            }
             // A map of guessed depths is none for the loop closer.
             let left_map = self
                 .tracking_map

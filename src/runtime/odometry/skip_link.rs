@@ -56,7 +56,8 @@ impl Odometry {
             .filter(|(id, _)| *id == newest)
             .map(|(_, b)| b)?;
         let (from, x_from) = self.window.second_newest().map(|(id, x)| (id, *x))?;
-        let mut kf = self.skip.left.clone().filter(|kf| kf.id == from)?;
+        // Each keyframe left is the one two back at the next new keyframe only: taken, not copied.
+        let mut kf = self.skip.left.take().filter(|kf| kf.id == from)?;
         kf.t_world_cam = pose_of(&x_from) * self.rig.t_body_cam;
         let tracker = self.skip.tracker.get_or_insert_with(|| {
             Tracker::new(
