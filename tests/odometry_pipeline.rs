@@ -1550,6 +1550,35 @@ fn loop_closures_correct_the_published_pose_and_leave_the_odometry_alone() {
         e_guided.ate_rmse_m,
         e_plain.ate_rmse_m
     );
+    // The keyframe cycle's velocity errors (report.json) of the odometry itself: every window
+    // solve that reset the tracker is one published frame, and on this ideal flight the
+    // velocity is right to centimetres per second before, at and after a solve (a solve placed
+    // on the wrong frame, or a velocity left in the window's world, would be tenths off).
+    let solves = &plain.odometry.window_solve_frames;
+    assert!(!solves.is_empty() && solves.len() <= plain.odometry.window_solve_s.len());
+    assert!(solves.windows(2).all(|w| w[0] < w[1]), "one solve a frame");
+    assert!(
+        solves
+            .iter()
+            .all(|t| plain.frames.iter().any(|r| r.t == *t)),
+        "a solve on no published frame"
+    );
+    let mut report = ReplayReport::new(&plain, true, "semidense", false);
+    report.set_velocity_errors(
+        &ds.ground_truth().unwrap().unwrap(),
+        &trajectory(&plain),
+        &plain,
+    );
+    let cycle = [
+        report.velocity_rmse_before_window_solves_m_s,
+        report.velocity_rmse_at_window_solves_m_s,
+        report.velocity_rmse_at_keyframe_switches_m_s,
+    ];
+    println!("velocity error before / at window solves / at new keyframes: {cycle:?} m/s");
+    assert!(
+        cycle.iter().all(|v| v.is_some_and(|v| v < 0.05)),
+        "{cycle:?}"
+    );
     done_with_ideal_flight(&dir);
 }
 

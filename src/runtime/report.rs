@@ -10,6 +10,7 @@ use crate::eval::velocity::velocity_errors;
 use crate::eval::{EvalOptions, EvalReport, SegmentError, alignment, evaluate};
 use crate::loop_closure::closer::LoopClosureStats;
 use crate::runtime::odometry::LoopEdgeSummary;
+use crate::time::TimeNs;
 use crate::tracking::{TrackResult, pose_of};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -343,6 +344,17 @@ pub struct ReplayReport {
     pub velocity_median_m_s: Option<f64>,
     pub velocity_p90_m_s: Option<f64>,
     pub velocity_max_m_s: Option<f64>,
+    /// The same velocity error (RMS, m/s) on three kinds of frame of the keyframe cycle: the
+    /// frame before each keyframe-window solve (tracking's own velocity), the solve's frame
+    /// (the tracker's state replaced by the window's newest keyframe: the velocity the frames
+    /// until the new keyframe is installed start from) and the first frame tracked against a
+    /// new keyframe (installed with its adjustment's last view). On S-V101 the window's velocity
+    /// of the present is worse than tracking's and the adjustment's better than both (session
+    /// 89: seed 1 0.035 / 0.046 / 0.032, docs/odometry-log.md, *The keyframe window's velocity
+    /// of the present*); `None` without a ground-truth velocity or such frames.
+    pub velocity_rmse_before_window_solves_m_s: Option<f64>,
+    pub velocity_rmse_at_window_solves_m_s: Option<f64>,
+    pub velocity_rmse_at_keyframe_switches_m_s: Option<f64>,
     /// The odometry's accelerometer bias (body), per axis the median over its tracked frames,
     /// m/s²; `None` if no frame was tracked.
     pub accel_bias_est_m_s2: Option<[f64; 3]>,
@@ -667,6 +679,9 @@ impl ReplayReport {
             velocity_median_m_s: None,
             velocity_p90_m_s: None,
             velocity_max_m_s: None,
+            velocity_rmse_before_window_solves_m_s: None,
+            velocity_rmse_at_window_solves_m_s: None,
+            velocity_rmse_at_keyframe_switches_m_s: None,
             accel_bias_est_m_s2: (!tracked.is_empty()).then(|| {
                 std::array::from_fn(|k| {
                     percentile(
@@ -727,6 +742,17 @@ impl ReplayReport {
             self.velocity_p90_m_s = Some(e.p90_m_s);
             self.velocity_max_m_s = Some(e.max_m_s);
         }
+        let kinds: Vec<_> = (out.frames.iter().zip(&out.phases))
+            .map(|(r, &p)| (r.t, p, r.keyframe_id))
+            .collect();
+        let cycle = cycle_frames(&kinds, &out.odometry.window_solve_frames);
+        let rmse = |idx: &[usize]| {
+            let sub: Vec<_> = idx.iter().map(|&i| v[i]).collect();
+            velocity_errors(&gt.states, &sub, &align, opts.max_dt_ns).map(|e| e.rmse_m_s)
+        };
+        self.velocity_rmse_before_window_solves_m_s = rmse(&cycle.before_solve);
+        self.velocity_rmse_at_window_solves_m_s = rmse(&cycle.solve);
+        self.velocity_rmse_at_keyframe_switches_m_s = rmse(&cycle.switch);
     }
 
     /// Fills the `map_depth_*` keys from the keyframes' depth errors.
@@ -801,4 +827,73 @@ impl ReplayReport {
 /// would read as a measurement).
 fn percentile_if_any(sorted: &[f64], p: f64) -> Option<f64> {
     (!sorted.is_empty()).then(|| percentile(sorted, p))
+}
+
+/// Frames of the keyframe cycle, as indices into a replay's frames (each list ascending).
+#[derive(Debug, Default, PartialEq)]
+struct CycleFrames {
+    /// A tracked frame followed by a window solve's frame.
+    before_solve: Vec<usize>,
+    /// A tracked frame whose state a keyframe-window solve replaced.
+    solve: Vec<usize>,
+    /// A tracked frame after a tracked one, on another keyframe (a new one installed or a stored
+    /// one returned to), that is not a solve's frame.
+    switch: Vec<usize>,
+}
+
+/// Classifies `frames` (time, phase, keyframe tracked) by the times of the window solves
+/// (`solves`, ascending).
+fn cycle_frames(frames: &[(TimeNs, Phase, Option<u32>)], solves: &[TimeNs]) -> CycleFrames {
+    let mut c = CycleFrames::default();
+    let tracked = |i: usize| frames[i].1 == Phase::Tracking;
+    for i in (0..frames.len()).filter(|&i| tracked(i)) {
+        if solves.binary_search(&frames[i].0).is_ok() {
+            c.solve.push(i);
+            if i > 0 && tracked(i - 1) {
+                c.before_solve.push(i - 1);
+            }
+        } else if i > 0
+            && tracked(i - 1)
+            && frames[i].2.is_some()
+            && frames[i - 1].2.is_some()
+            && frames[i].2 != frames[i - 1].2
+        {
+            c.switch.push(i);
+        }
+    }
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_keyframe_cycle_splits_tracked_frames_into_before_at_a_solve_and_at_a_switch() {
+        use Phase::*;
+        let t = |k: i64| TimeNs(k * 50_000_000);
+        let frames = [
+            (t(0), Static, None),
+            (t(1), Tracking, Some(1)),
+            (t(2), Tracking, Some(1)), // before the solve
+            (t(3), Tracking, Some(1)), // solve
+            (t(4), Tracking, Some(1)),
+            (t(5), Tracking, Some(2)), // switch
+            (t(6), Tracking, Some(2)),
+            (t(7), Lost, None),
+            (t(8), Tracking, Some(3)), // solve after a loss: nothing tracked before it
+            (t(9), Tracking, Some(7)), // switch (a stored keyframe)
+            (t(10), Tracking, Some(7)),
+        ];
+        // A solve time without a tracked frame (t(7): lost) is not counted.
+        let c = cycle_frames(&frames, &[t(3), t(7), t(8)]);
+        assert_eq!(
+            c,
+            CycleFrames {
+                before_solve: vec![2],
+                solve: vec![3, 8],
+                switch: vec![5, 9],
+            }
+        );
+    }
 }

@@ -558,6 +558,18 @@ impl ReplayReport {
                     format!("{rmse:.4} m/s RMSE, {p90:.4} m/s p90"),
                 );
             }
+            if let (Some(b), Some(w), Some(k)) = (
+                self.velocity_rmse_before_window_solves_m_s,
+                self.velocity_rmse_at_window_solves_m_s,
+                self.velocity_rmse_at_keyframe_switches_m_s,
+            ) {
+                row(
+                    "velocity error in the keyframe cycle",
+                    format!(
+                        "{b:.4} before / {w:.4} at window solves, {k:.4} at new keyframes, m/s RMSE"
+                    ),
+                );
+            }
             row(
                 "evaluated",
                 format!(

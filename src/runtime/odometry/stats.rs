@@ -110,6 +110,9 @@ pub struct OdometryStats {
     pub speed_fault_frames: usize,
     /// Wall time of each keyframe-window solve (on the tracking thread), s.
     pub window_solve_s: Vec<f64>,
+    /// The frames whose state a keyframe-window solve replaced (the tracker's state reset to the
+    /// window's newest keyframe), in time order.
+    pub window_solve_frames: Vec<TimeNs>,
     /// Each window solve's change of the distance from the window's previous newest keyframe
     /// to the new one (solved / as tracked; baselines over 1 cm): the correction by which the
     /// IMU's scale reaches the maps, since the mapper's world is chained through it

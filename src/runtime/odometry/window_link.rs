@@ -203,6 +203,7 @@ impl Odometry {
         }
         let cov = *self.tracker.covariance();
         self.tracker.reset_state(x_new, cov);
+        self.stats.window_solve_frames.push(t);
         if let Some(xk) = &xk
             && self.tracker.keyframe().is_some_and(|kf| kf.id == newest)
         {
