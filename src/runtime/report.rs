@@ -348,10 +348,10 @@ pub struct ReplayReport {
     /// frame before each keyframe-window solve (tracking's own velocity), the solve's frame
     /// (the tracker's state replaced by the window's newest keyframe: the velocity the frames
     /// until the new keyframe is installed start from) and the first frame tracked against a
-    /// new keyframe (installed with its adjustment's last view). On S-V101 the window's velocity
-    /// of the present is worse than tracking's and the adjustment's better than both (session
-    /// 89: seed 1 0.035 / 0.046 / 0.032, docs/odometry-log.md, *The keyframe window's velocity
-    /// of the present*); `None` without a ground-truth velocity or such frames.
+    /// new keyframe (installed with its adjustment's last view). On S-V101's typical seeds the
+    /// window's velocity of the present is worse than tracking's and the adjustment's better than
+    /// both (session 89: seed 1 0.035 / 0.046 / 0.032, docs/odometry-log.md, *The keyframe
+    /// window's velocity of the present*); `None` without a ground-truth velocity or such frames.
     pub velocity_rmse_before_window_solves_m_s: Option<f64>,
     pub velocity_rmse_at_window_solves_m_s: Option<f64>,
     pub velocity_rmse_at_keyframe_switches_m_s: Option<f64>,
