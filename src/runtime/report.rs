@@ -347,8 +347,9 @@ pub struct ReplayReport {
     /// The same velocity error (RMS, m/s) on three kinds of frame of the keyframe cycle: the
     /// frame before each keyframe-window solve (tracking's own velocity), the solve's frame
     /// (the tracker's state replaced by the window's newest keyframe: the velocity the frames
-    /// until the new keyframe is installed start from) and the first frame tracked against a
-    /// new keyframe (installed with its adjustment's last view). On S-V101's typical seeds the
+    /// until the new keyframe is installed start from) and the first frame tracked against
+    /// another keyframe (a new one, installed with its adjustment's last view, or a stored one
+    /// returned to). On S-V101's typical seeds the
     /// window's velocity of the present is worse than tracking's and the adjustment's better than
     /// both (session 89: seed 1 0.035 / 0.046 / 0.032, docs/odometry-log.md, *The keyframe
     /// window's velocity of the present*); `None` without a ground-truth velocity or such frames.
