@@ -915,18 +915,16 @@ fn a_skip_edge_joins_only_the_keyframe_two_back_over_two_tracked_steps() {
     for k in 1..=3u32 {
         let xt = truth(&sp, t0.add_ns(k as i64 * KF_PERIOD_NS));
         let pre = preintegrate(&sp, w.newest().unwrap().1, xt.nav.t);
+        // Keyframe 3 has no tracked relative pose to keyframe 2 (a return, a loss).
         let visual = (k != 3).then(|| relative(xs.last().unwrap(), &xt));
+        w.push(k, xt, pre, visual);
         if k == 1 {
             // Two back from keyframe 1 there is nothing.
-            w.push(k, xt, pre, visual);
             assert!(!w.set_newest_skip(0, relative(&x0, &xt)));
         } else if k == 2 {
-            w.push(k, xt, pre, visual);
             assert!(!w.set_newest_skip(1, relative(&xs[1], &xt)), "not two back");
             assert!(w.set_newest_skip(0, relative(&x0, &xt)));
         } else {
-            // Keyframe 3 has no tracked relative pose to keyframe 2 (a return, a loss).
-            w.push(k, xt, pre, visual);
             assert!(!w.set_newest_skip(1, relative(&xs[1], &xt)));
         }
         xs.push(xt);
