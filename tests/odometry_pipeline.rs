@@ -325,6 +325,48 @@ fn a_freer_gyro_bias_walk_reaches_the_estimate() {
     assert_metric_takeoff(&dir, &b, "take-off with a freer gyro bias walk");
 }
 
+/// `[keyframe_bundle] previous_host` reaches the odometry: a new keyframe is adjusted together
+/// with the keyframe tracked when it was started. On the take-off most applied adjustments then
+/// take that keyframe as their gauge (each marked in `adjustments.csv`), none do by default, the
+/// option reaches the estimate, and the take-off is metric either way.
+#[test]
+fn new_keyframes_are_adjusted_together_with_the_keyframe_before_them_when_asked() {
+    let (dir, alone, with_previous) =
+        takeoff_replayed_with(|o| o.keyframe_bundle.previous_host = true);
+    let applied = with_previous.odometry.keyframe_bundle_s().len();
+    let with = with_previous.odometry.keyframe_bundles_with_previous();
+    println!("take-off: {with} of {applied} applied adjustments with the keyframe before");
+    assert!(applied >= 3, "{applied}");
+    assert!(2 * with >= applied, "{with} of {applied}");
+    let rows = adjustments_csv(&with_previous.odometry.adjustments);
+    let column = rows
+        .lines()
+        .next()
+        .unwrap()
+        .split(',')
+        .position(|c| c == "with_previous")
+        .expect("with_previous column");
+    let marked = rows
+        .lines()
+        .skip(1)
+        .filter(|l| l.ends_with(",applied") && l.split(',').nth(column) == Some("1"))
+        .count();
+    assert_eq!(marked, with);
+    assert_eq!(alone.odometry.keyframe_bundles_with_previous(), 0);
+    assert!(alone.odometry.keyframe_bundle_s().len() >= 3);
+    assert_trajectories_differ(
+        &alone,
+        &with_previous,
+        "previous_host did not reach the estimate",
+    );
+    assert_metric_takeoff(
+        &dir,
+        &with_previous,
+        "take-off, keyframes adjusted with the one before",
+    );
+    assert_metric_takeoff(&dir, &alone, "take-off, keyframes adjusted alone");
+}
+
 /// `[tracking] keyframe_max_age_s` reaches the odometry: with a 0.3 s limit keyframes are started
 /// at it (counted in `aged_keyframes`), there are more of them than without, and the take-off is
 /// still metric.

@@ -78,7 +78,12 @@ pub struct KeyframeBundleConfig {
     /// Adjust a new keyframe together with the keyframe tracked when it was started: that one is
     /// the gauge (its pose fixed, its depths free), the frames tracked against it up to the new
     /// keyframe join the IMU chain, and the new keyframe's pose is free instead of taken as
-    /// tracking left it.
+    /// tracking left it. The pixels of both maps then tie the new map's scale to the one before
+    /// over two keyframe intervals of IMU. Off: offline it keeps S-V101's scale where the single
+    /// adjustment loses it (seeds 16 / 20 0.409 / 0.165 → 0.087 / 0.102 m, seeds 1–20 mean 0.107
+    /// → 0.087 m), but it takes ~3.5 × the adjustment's time, and installed that much later — in
+    /// real time, or offline with `lag_frames = 7` — S-V101 seed 1 runs away (1.3 m, 440 m;
+    /// docs/odometry-log.md, *A new keyframe adjusted together with the one before it*).
     pub previous_host: bool,
     /// At most this many of the frames between the two keyframes go into that adjustment (evenly
     /// spaced, the last one included; the IMU is preintegrated across the others).

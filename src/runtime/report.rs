@@ -265,6 +265,10 @@ pub struct ReplayReport {
     /// refinements and keyframe adjustments not started because their thread was busy (real
     /// time) or not used (superseded, or back after their keyframe was left).
     pub keyframe_bundles: usize,
+    /// Of those, the adjustments made together with the keyframe tracked when theirs was started,
+    /// that one the gauge (`[keyframe_bundle] previous_host`).
+    #[serde(default)]
+    pub keyframe_bundles_with_previous: usize,
     pub keyframe_bundle_ms_p50: f64,
     pub keyframe_bundle_ms_max: f64,
     pub keyframe_bundle_depth_change_median_pct: f64,
@@ -634,6 +638,7 @@ impl ReplayReport {
             stored_map_scale_correction_p50: stored_scale_pct(50.0),
             stored_map_scale_correction_p90: stored_scale_pct(90.0),
             keyframe_bundles: kb_ms.len(),
+            keyframe_bundles_with_previous: out.odometry.keyframe_bundles_with_previous(),
             keyframe_bundle_ms_p50: percentile(&kb_ms, 50.0),
             keyframe_bundle_ms_max: kb_ms.last().copied().unwrap_or(0.0),
             keyframe_bundle_depth_change_median_pct: percentile(&kb_change, 50.0),

@@ -508,10 +508,11 @@ impl ReplayReport {
             row(
                 "keyframe adjustments",
                 format!(
-                    "{}, ms p50/max {:.0} / {:.0}, depth change median {:.1} %, accel bias \
-                     jump p50/max {:.3} / {:.3} m/s², velocity change p50/max {:.3} / {:.3} \
-                     m/s, dropped {}, discarded {}, rejected {}",
+                    "{} ({} with the keyframe before), ms p50/max {:.0} / {:.0}, depth change \
+                     median {:.1} %, accel bias jump p50/max {:.3} / {:.3} m/s², velocity \
+                     change p50/max {:.3} / {:.3} m/s, dropped {}, discarded {}, rejected {}",
                     self.keyframe_bundles,
+                    self.keyframe_bundles_with_previous,
                     self.keyframe_bundle_ms_p50,
                     self.keyframe_bundle_ms_max,
                     self.keyframe_bundle_depth_change_median_pct,

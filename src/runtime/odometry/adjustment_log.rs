@@ -41,6 +41,10 @@ pub struct AdjustmentRecord {
     pub frames_late: u64,
     /// A keyframe tracked with guessed depths (its depths rescaled by it), not a new one.
     pub guessed: bool,
+    /// Adjusted together with the keyframe tracked when it was started, that one the gauge
+    /// (`[keyframe_bundle] previous_host`); false when it had no such keyframe (a stored one, one
+    /// of guesses, not the keyframe window's newest) or no result.
+    pub with_previous: bool,
     /// Change of its last view's velocity from the state tracking had, m/s (NaN: no result).
     pub velocity_change_m_s: f64,
     /// Change of the accelerometer bias from the tracker's, m/s² (NaN: no result).
@@ -55,16 +59,17 @@ pub struct AdjustmentRecord {
 /// `adjustments.csv`: one row per keyframe adjustment that came back.
 pub fn adjustments_csv(rows: &[AdjustmentRecord]) -> String {
     let mut s = String::from(
-        "keyframe_t_ns,taken_after_t_ns,frames_late,guessed,velocity_change_m_s,\
+        "keyframe_t_ns,taken_after_t_ns,frames_late,guessed,with_previous,velocity_change_m_s,\
          accel_bias_jump_m_s2,depth_change,time_ms,outcome\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "{},{},{},{},{:.4},{:.4},{:.4},{:.1},{}\n",
+            "{},{},{},{},{},{:.4},{:.4},{:.4},{:.1},{}\n",
             r.keyframe_t.0,
             r.taken_after_t.0,
             r.frames_late,
             u8::from(r.guessed),
+            u8::from(r.with_previous),
             r.velocity_change_m_s,
             r.accel_bias_jump_m_s2,
             r.depth_change,

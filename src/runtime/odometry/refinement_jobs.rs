@@ -310,6 +310,7 @@ impl Odometry {
             taken_after_t: self.last_t.unwrap_or(unadjusted.t),
             frames_late,
             guessed: tracked,
+            with_previous: false,
             velocity_change_m_s: f64::NAN,
             accel_bias_jump_m_s2: f64::NAN,
             depth_change: f64::NAN,
@@ -332,6 +333,7 @@ impl Odometry {
                 && a.median_inv_depth_ratio > 0.0
         });
         if let Some(a) = &adjusted {
+            record.with_previous = a.keyframe_state.is_some();
             let dv_m_s = (a.last_view.nav.v_world_m_s - tracked_last.nav.v_world_m_s).norm();
             record.velocity_change_m_s = dv_m_s;
             record.accel_bias_jump_m_s2 =

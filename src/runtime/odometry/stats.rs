@@ -185,6 +185,14 @@ impl OdometryStats {
         self.applied_adjustments().map(|r| r.time_s).collect()
     }
 
+    /// The applied keyframe adjustments that took the keyframe tracked before as their gauge
+    /// (`[keyframe_bundle] previous_host`).
+    pub fn keyframe_bundles_with_previous(&self) -> usize {
+        self.applied_adjustments()
+            .filter(|r| r.with_previous)
+            .count()
+    }
+
     /// Median relative inverse-depth change of each applied keyframe adjustment.
     pub fn keyframe_bundle_depth_changes(&self) -> Vec<f64> {
         self.applied_adjustments().map(|r| r.depth_change).collect()
