@@ -91,6 +91,9 @@ pub struct KeyframeBundleConfig {
     /// Prior standard deviation of the previous keyframe's velocity around the window's
     /// estimate in that adjustment, m/s: the chain is long enough for the frames to tell it.
     pub previous_host_velocity_std_m_s: f64,
+    /// Of the previous keyframe's points, every this many go into that adjustment (1 = all):
+    /// they are the gauge's, observed by every frame of the chain, and most of its cost.
+    pub previous_host_point_stride: usize,
     /// In real time a new keyframe waits for this many frames tracked since it was started
     /// before it is adjusted and installed (at least `min_views`; unless the keyframe tracked
     /// meanwhile is nearly lost, `[bootstrap] urgent_unadjusted_inlier_ratio`). Offline the
@@ -150,6 +153,7 @@ impl Default for KeyframeBundleConfig {
             previous_host: false,
             previous_host_max_frames: 6,
             previous_host_velocity_std_m_s: 0.1,
+            previous_host_point_stride: 1,
             realtime_min_views: 4,
             gyro_turn_min_rad: 0.0044,
             max_velocity_change_m_s: 0.3,
@@ -205,12 +209,23 @@ pub struct AdjustedKeyframe {
 /// The host points of `kf`'s level-0 point set (rays, inverse depths, host intensities and
 /// gradient weights on every level of `host`).
 pub fn host_points(kf: &Keyframe, host: &Pyramid, gradient_weight_gray_px: f32) -> HostPoints {
+    host_points_every(kf, host, gradient_weight_gray_px, 1)
+}
+
+/// [`host_points`] of every `stride`-th point of the keyframe (in its order; 0 counts as 1).
+pub fn host_points_every(
+    kf: &Keyframe,
+    host: &Pyramid,
+    gradient_weight_gray_px: f32,
+    stride: usize,
+) -> HostPoints {
     let (rays, inv_depth): (Vec<_>, Vec<_>) = kf
         .levels
         .first()
         .map(|l| l.p_kf_m.as_slice())
         .unwrap_or_default()
         .iter()
+        .step_by(stride.max(1))
         .filter(|p| p[2] > 0.0)
         .map(|p| {
             let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
@@ -331,7 +346,12 @@ pub fn bundle_adjust_keyframe(
     let (t_world_host_cam, host, chain_hosts) = match prev {
         Some(p) => {
             let pyr = Pyramid::from_u8(&p.image, levels);
-            let gauge = host_points(&p.keyframe, &pyr, gradient_weight_gray_px);
+            let gauge = host_points_every(
+                &p.keyframe,
+                &pyr,
+                gradient_weight_gray_px,
+                cfg.previous_host_point_stride,
+            );
             let chain = ChainHost {
                 view: between.len(),
                 points: own,
@@ -527,5 +547,49 @@ mod tests {
         assert!((x.nav.v_world_m_s - v_expect).norm() < 1e-12);
         assert!((x.bias.accel_m_s2.x - (0.015 + 0.02)).abs() < 1e-12);
         assert_eq!(x.nav.t, TimeNs(200));
+    }
+
+    /// `previous_host_point_stride`: the gauge keeps every k-th point of its keyframe, each with
+    /// its own ray and inverse depth, and a stride of 1 (or 0) keeps them all.
+    #[test]
+    fn the_gauge_keeps_every_kth_point_of_its_keyframe() {
+        use crate::camera::CameraModel;
+        use crate::runtime::guessed_keyframe::textured_pyramid;
+        use crate::tracking::TrackerConfig;
+        let cam = CameraModel::euroc_cam0();
+        let pyr = textured_pyramid(&cam);
+        let points: Vec<DepthPoint> = (0..40)
+            .map(|i| DepthPoint {
+                u_px: 100.0 + 12.0 * (i % 8) as f32,
+                v_px: 100.0 + 15.0 * (i / 8) as f32,
+                inv_depth_m_inv: 0.2 + 0.01 * i as f32,
+            })
+            .collect();
+        let kf = Keyframe::new(
+            1,
+            TimeNs(0),
+            &pyr,
+            &cam,
+            Isometry3::identity(),
+            &points,
+            &TrackerConfig::default(),
+        );
+        let all = host_points(&kf, &pyr, 8.0);
+        assert_eq!(all.rays.len(), kf.levels[0].p_kf_m.len());
+        assert!(all.rays.len() >= 20, "{}", all.rays.len());
+        assert_eq!(host_points_every(&kf, &pyr, 8.0, 0).rays, all.rays);
+        let every3 = host_points_every(&kf, &pyr, 8.0, 3);
+        assert_eq!(every3.rays.len(), all.rays.len().div_ceil(3));
+        for (k, (ray, rho)) in every3.rays.iter().zip(&every3.inv_depth_m_inv).enumerate() {
+            assert_eq!(*ray, all.rays[3 * k]);
+            assert_eq!(*rho, all.inv_depth_m_inv[3 * k]);
+        }
+        // Each level's samples are the kept points' (one intensity per point and level).
+        assert!(
+            every3
+                .intensity
+                .iter()
+                .all(|l| l.len() == every3.rays.len())
+        );
     }
 }
