@@ -94,6 +94,12 @@ pub struct KeyframeBundleConfig {
     /// Of the previous keyframe's points, every this many go into that adjustment (1 = all):
     /// they are the gauge's, observed by every frame of the chain, and most of its cost.
     pub previous_host_point_stride: usize,
+    /// Levenberg–Marquardt iterations per pyramid level in that adjustment (its cost; the single
+    /// keyframe's adjustment takes `iterations_per_level`).
+    pub previous_host_iterations_per_level: usize,
+    /// The finest pyramid level that adjustment solves (0 = all; 1 skips the full-resolution
+    /// level, its most expensive one to sample).
+    pub previous_host_finest_level: usize,
     /// In real time a new keyframe waits for this many frames tracked since it was started
     /// before it is adjusted and installed (at least `min_views`; unless the keyframe tracked
     /// meanwhile is nearly lost, `[bootstrap] urgent_unadjusted_inlier_ratio`). Offline the
@@ -154,6 +160,8 @@ impl Default for KeyframeBundleConfig {
             previous_host_max_frames: 6,
             previous_host_velocity_std_m_s: 0.1,
             previous_host_point_stride: 1,
+            previous_host_iterations_per_level: 6,
+            previous_host_finest_level: 0,
             realtime_min_views: 4,
             gyro_turn_min_rad: 0.0044,
             max_velocity_change_m_s: 0.3,
@@ -378,7 +386,14 @@ pub fn bundle_adjust_keyframe(
         chain_hosts,
         noise,
         cfg: BundleConfig {
-            iterations_per_level: cfg.iterations_per_level,
+            iterations_per_level: match prev {
+                Some(_) => cfg.previous_host_iterations_per_level,
+                None => cfg.iterations_per_level,
+            },
+            finest_level: match prev {
+                Some(_) => cfg.previous_host_finest_level,
+                None => 0,
+            },
             start_velocity_std_m_s: match prev {
                 Some(_) => cfg.previous_host_velocity_std_m_s,
                 None => cfg.velocity_std_m_s,
