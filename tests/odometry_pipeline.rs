@@ -1823,3 +1823,43 @@ fn the_gyro_noise_read_in_flight_weighs_the_back_ends_gyro_rotation() {
         "the factor read in flight did not reach the estimate"
     );
 }
+
+/// `[keyframe_bundle] previous_host` with adjustments that come back late (`lag_frames`, as in
+/// real time): the frames tracked since a keyframe's time — its views and those of the wait for
+/// its adjustment, moved by it — stay in the chain of the next keyframe's adjustment, so the IMU
+/// alone spans one frame interval from the gauge keyframe to that chain's first frame (without
+/// them, `lag_frames` + its views). The take-off stays metric.
+#[test]
+fn a_late_adjustment_keeps_the_frames_since_its_keyframe_in_the_next_chain() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions::default();
+    opts.keyframe_bundle.previous_host = true;
+    opts.keyframe_bundle.lag_frames = 3;
+    let late = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let ds = AslDataset::open(&dir).unwrap();
+    let times: Vec<_> = ds.frames().unwrap().take(2).map(|f| f.unwrap().t).collect();
+    let frame_s = times[1].secs_since(times[0]);
+    let gaps_s: Vec<f64> = late
+        .odometry
+        .adjustments
+        .iter()
+        .filter(|r| r.outcome == AdjustmentOutcome::Applied && r.with_previous)
+        .map(|r| {
+            assert!(r.frames_late >= 3, "{} frames late", r.frames_late);
+            r.chain_imu_gap_s
+        })
+        .collect();
+    println!("IMU-only gaps before the chains' first frames: {gaps_s:.3?} s (frames {frame_s} s)");
+    assert!(gaps_s.len() >= 3, "{gaps_s:?}");
+    // (The first gauge is the take-off's map, installed without an adjustment of its own.)
+    let wide = gaps_s
+        .iter()
+        .filter(|&&g| g.is_nan() || g >= 1.5 * frame_s)
+        .count();
+    assert!(wide <= 1, "{gaps_s:?}");
+    assert_metric_takeoff(
+        &dir,
+        &late,
+        "take-off, late adjustments with the keyframe before",
+    );
+}

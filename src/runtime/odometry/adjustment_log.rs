@@ -45,6 +45,11 @@ pub struct AdjustmentRecord {
     /// (`[keyframe_bundle] previous_host`); false when it had no such keyframe (a stored one, one
     /// of guesses, not the keyframe window's newest) or no result.
     pub with_previous: bool,
+    /// Adjusted with the keyframe before: the time from it to the first frame after it in the
+    /// adjustment's chain (the IMU alone across it), s; NaN otherwise. One frame interval when the
+    /// frames tracked since that keyframe's time are kept for it — also those of the wait for its
+    /// own adjustment (real time), moved by that adjustment.
+    pub chain_imu_gap_s: f64,
     /// Change of its last view's velocity from the state tracking had, m/s (NaN: no result).
     pub velocity_change_m_s: f64,
     /// Change of the accelerometer bias from the tracker's, m/s² (NaN: no result).
@@ -59,17 +64,18 @@ pub struct AdjustmentRecord {
 /// `adjustments.csv`: one row per keyframe adjustment that came back.
 pub fn adjustments_csv(rows: &[AdjustmentRecord]) -> String {
     let mut s = String::from(
-        "keyframe_t_ns,taken_after_t_ns,frames_late,guessed,with_previous,velocity_change_m_s,\
-         accel_bias_jump_m_s2,depth_change,time_ms,outcome\n",
+        "keyframe_t_ns,taken_after_t_ns,frames_late,guessed,with_previous,chain_imu_gap_s,\
+         velocity_change_m_s,accel_bias_jump_m_s2,depth_change,time_ms,outcome\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "{},{},{},{},{},{:.4},{:.4},{:.4},{:.1},{}\n",
+            "{},{},{},{},{},{:.3},{:.4},{:.4},{:.4},{:.1},{}\n",
             r.keyframe_t.0,
             r.taken_after_t.0,
             r.frames_late,
             u8::from(r.guessed),
             u8::from(r.with_previous),
+            r.chain_imu_gap_s,
             r.velocity_change_m_s,
             r.accel_bias_jump_m_s2,
             r.depth_change,

@@ -584,8 +584,8 @@ impl Odometry {
         self.tracking_map = Some(s.map.clone());
         self.tracking_kf_image = Some(s.keyframe_image.clone());
         if is_new {
-            // Frames tracked so far were tracked against the keyframe before: their states are
-            // not this keyframe's (its adjustment moved them), so they do not join its chain.
+            // Frames tracked so far were tracked against the keyframe before; those since this
+            // one's time join its chain moved by its adjustment (`apply_keyframe_adjustment`).
             self.tracked_frames.clear();
         }
         self.tracking_kf_filled = filled;

@@ -272,6 +272,9 @@ enum PendingKind {
         snapshot: MapSnapshot,
         /// The keyframe is the one tracked (installed with guessed depths), not a new one.
         tracked: bool,
+        /// With the keyframe before as the gauge (`previous_host`): the time from it to the
+        /// first frame after it in the chain, s (NaN: without it).
+        chain_imu_gap_s: f64,
     },
     Takeoff {
         /// The mapper's id of the first map being refined.

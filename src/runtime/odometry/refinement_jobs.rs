@@ -119,6 +119,10 @@ impl Odometry {
             .as_ref()
             .map_or(rec.start.nav.t, |p| p.state.nav.t);
         let imu = imu_between(self.imu.make_contiguous(), t0, Some(tracked_last.nav.t));
+        let chain_imu_gap_s = rec.previous.as_ref().map_or(f64::NAN, |p| {
+            let first = p.frames.first().map_or(rec.start.nav.t, |(f, _)| f.t);
+            first.secs_since(p.state.nav.t)
+        });
         // A first map started in flight with guessed depths: its start velocity is the one
         // dead-reckoned through the loss.
         let reinit = tracked && self.reinit_kf.take_if(|id| *id == rec.id).is_some();
@@ -142,6 +146,7 @@ impl Odometry {
             unadjusted_pose,
             snapshot: s,
             tracked,
+            chain_imu_gap_s,
         };
         self.send_refinement(job, kind).is_ok()
     }
@@ -261,6 +266,7 @@ impl Odometry {
                     unadjusted_pose,
                     snapshot,
                     tracked,
+                    chain_imu_gap_s,
                 },
             ) => self.apply_keyframe_adjustment(
                 adjusted,
@@ -271,7 +277,7 @@ impl Odometry {
                 ),
                 &tracked_last,
                 &catch_up,
-                (o.time_s, frames_late),
+                (o.time_s, frames_late, chain_imu_gap_s),
             ),
             (
                 RefineResult::Takeoff(refined),
@@ -302,7 +308,7 @@ impl Odometry {
         (unadjusted, snapshot, tracked): (Keyframe, &MapSnapshot, bool),
         tracked_last: &FrameState,
         catch_up: &[(TimeNs, Arc<Image<u8>>)],
-        (time_s, frames_late): (f64, u64),
+        (time_s, frames_late, chain_imu_gap_s): (f64, u64, f64),
     ) {
         let id = snapshot.keyframe_id;
         let mut record = AdjustmentRecord {
@@ -311,6 +317,7 @@ impl Odometry {
             frames_late,
             guessed: tracked,
             with_previous: false,
+            chain_imu_gap_s: f64::NAN,
             velocity_change_m_s: f64::NAN,
             accel_bias_jump_m_s2: f64::NAN,
             depth_change: f64::NAN,
@@ -334,6 +341,9 @@ impl Odometry {
         });
         if let Some(a) = &adjusted {
             record.with_previous = a.keyframe_state.is_some();
+            if record.with_previous {
+                record.chain_imu_gap_s = chain_imu_gap_s;
+            }
             let dv_m_s = (a.last_view.nav.v_world_m_s - tracked_last.nav.v_world_m_s).norm();
             record.velocity_change_m_s = dv_m_s;
             record.accel_bias_jump_m_s2 =
@@ -379,7 +389,14 @@ impl Odometry {
             self.stats.guessed_keyframe_scales.push(1.0 / factor);
         } else {
             let moved = a.keyframe_state;
+            // The frames tracked since the keyframe's time (its views, and those of the wait
+            // for its adjustment) stay in the chain of the next keyframe's adjustment with this
+            // one (`previous_host`), moved by the last view's correction: installing the
+            // keyframe clears them, and without them a late adjustment (real time) left that
+            // chain to the IMU alone from the keyframe to the first frame after the install.
+            let kept = self.chain_frames_since(a.keyframe.t, tracked_last, &a.last_view);
             self.install_keyframe(a.keyframe, snapshot, true, false, true);
+            self.tracked_frames.extend(kept);
             if let Some(x) = moved {
                 self.keyframe_moved(id, &x);
             }
@@ -407,8 +424,12 @@ impl Odometry {
                         image: image.clone(),
                         t_world_cam: self.tracker.t_world_cam(),
                     };
-                    self.tracked_frames
-                        .push_back((frame, *self.tracker.state()));
+                    let entry = (frame, *self.tracker.state());
+                    // (Its first tracking, kept above, is replaced.)
+                    match self.tracked_frames.iter_mut().find(|(f, _)| f.t == *t) {
+                        Some(e) => *e = entry,
+                        None => self.tracked_frames.push_back(entry),
+                    }
                 }
             }
             if self.tracker.state().is_finite() {
@@ -434,6 +455,29 @@ impl Odometry {
                 }
             }
         }
+    }
+
+    /// The frames kept for `previous_host` tracked after `t`, moved as the current state is by
+    /// the correction the adjustment made to its last view (tracked at `tracked`, adjusted to
+    /// `adjusted`; [`carry_correction`]).
+    fn chain_frames_since(
+        &self,
+        t: TimeNs,
+        tracked: &FrameState,
+        adjusted: &FrameState,
+    ) -> Vec<(MapFrame, FrameState)> {
+        let c = pose_of(adjusted) * pose_of(tracked).inverse();
+        self.tracked_frames
+            .iter()
+            .filter(|(f, _)| f.t > t)
+            .map(|(f, x)| {
+                let f = MapFrame {
+                    t_world_cam: c * f.t_world_cam,
+                    ..f.clone()
+                };
+                (f, carry_correction(x, tracked, adjusted))
+            })
+            .collect()
     }
 
     /// How many of the frames tracked while an adjustment is under way are tracked again when it
