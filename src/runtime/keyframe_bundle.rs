@@ -81,9 +81,12 @@ pub struct KeyframeBundleConfig {
     /// tracking left it. The pixels of both maps then tie the new map's scale to the one before
     /// over two keyframe intervals of IMU. Off: offline it keeps S-V101's scale where the single
     /// adjustment loses it (seeds 16 / 20 0.409 / 0.165 → 0.087 / 0.102 m, seeds 1–20 mean 0.107
-    /// → 0.087 m), but it takes ~3.5 × the adjustment's time, and installed that much later — in
-    /// real time, or offline with `lag_frames = 7` — S-V101 seed 1 runs away (1.3 m, 440 m;
-    /// docs/odometry-log.md, *A new keyframe adjusted together with the one before it*).
+    /// → 0.087 m), but it takes ~3.5 × the adjustment's time, and in real time S-V101 seed 1 runs
+    /// away (1.3 m; docs/odometry-log.md, *A new keyframe adjusted together with the one before
+    /// it*). Offline with `lag_frames = 7` it ran away too (440 m) until the frames tracked while
+    /// an adjustment is under way were kept in the next keyframe's chain (0.145 m); real time
+    /// still runs away (1.10 m in one of two runs; *The two-keyframe adjustment made cheaper, and
+    /// its chain kept across a late install*).
     pub previous_host: bool,
     /// At most this many of the frames between the two keyframes go into that adjustment (evenly
     /// spaced, the last one included; the IMU is preintegrated across the others).
@@ -95,10 +98,11 @@ pub struct KeyframeBundleConfig {
     /// they are the gauge's, observed by every frame of the chain, and most of its cost.
     pub previous_host_point_stride: usize,
     /// Levenberg–Marquardt iterations per pyramid level in that adjustment (its cost; the single
-    /// keyframe's adjustment takes `iterations_per_level`).
+    /// keyframe's adjustment takes `iterations_per_level`). 3 ran S-V101 seed 16 away offline.
     pub previous_host_iterations_per_level: usize,
-    /// The finest pyramid level that adjustment solves (0 = all; 1 skips the full-resolution
-    /// level, its most expensive one to sample).
+    /// The finest pyramid level that adjustment solves (0 = all). Every level samples the same
+    /// points: 1 / 2 take S-V101's adjustments from 467 to 322 / 224 ms p50 and keep seeds 16 /
+    /// 20's scale offline; in real time seed 1 still ran away.
     pub previous_host_finest_level: usize,
     /// In real time a new keyframe waits for this many frames tracked since it was started
     /// before it is adjusted and installed (at least `min_views`; unless the keyframe tracked
