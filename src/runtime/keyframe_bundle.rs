@@ -85,7 +85,7 @@ pub struct KeyframeBundleConfig {
     /// away (1.3 m; docs/odometry-log.md, *A new keyframe adjusted together with the one before
     /// it*). Offline with `lag_frames = 7` it ran away too (440 m) until the frames tracked while
     /// an adjustment is under way were kept in the next keyframe's chain (0.145 m); real time
-    /// still runs away (1.10 m in one of two runs; *The two-keyframe adjustment made cheaper, and
+    /// still runs away (1.10 m and 1 km in two of three runs; *The two-keyframe adjustment made cheaper, and
     /// its chain kept across a late install*).
     pub previous_host: bool,
     /// At most this many of the frames between the two keyframes go into that adjustment (evenly
