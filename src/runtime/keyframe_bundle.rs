@@ -85,8 +85,8 @@ pub struct KeyframeBundleConfig {
     /// away (1.3 m; docs/odometry-log.md, *A new keyframe adjusted together with the one before
     /// it*). Offline with `lag_frames = 7` it ran away too (440 m) until the frames tracked while
     /// an adjustment is under way were kept in the next keyframe's chain (0.145 m); real time
-    /// still runs away (1.10 m and 1 km in two of three runs; *The two-keyframe adjustment made cheaper, and
-    /// its chain kept across a late install*).
+    /// still runs away (1.10 m and 1 km in two of three runs; *The two-keyframe adjustment made
+    /// cheaper, and its chain kept across a late install*).
     pub previous_host: bool,
     /// At most this many of the frames between the two keyframes go into that adjustment (evenly
     /// spaced, the last one included; the IMU is preintegrated across the others).
@@ -372,6 +372,15 @@ pub fn bundle_adjust_keyframe(
         }
         None => (kf.t_world_cam, own, Vec::new()),
     };
+    // The two-keyframe adjustment's own settings (`previous_host_*`).
+    let (iterations_per_level, finest_level, start_velocity_std_m_s) = match prev {
+        Some(_) => (
+            cfg.previous_host_iterations_per_level,
+            cfg.previous_host_finest_level,
+            cfg.previous_host_velocity_std_m_s,
+        ),
+        None => (cfg.iterations_per_level, 0, cfg.velocity_std_m_s),
+    };
     let problem = PhotometricBundle {
         t_world_host_cam,
         t_body_cam,
@@ -390,18 +399,9 @@ pub fn bundle_adjust_keyframe(
         chain_hosts,
         noise,
         cfg: BundleConfig {
-            iterations_per_level: match prev {
-                Some(_) => cfg.previous_host_iterations_per_level,
-                None => cfg.iterations_per_level,
-            },
-            finest_level: match prev {
-                Some(_) => cfg.previous_host_finest_level,
-                None => 0,
-            },
-            start_velocity_std_m_s: match prev {
-                Some(_) => cfg.previous_host_velocity_std_m_s,
-                None => cfg.velocity_std_m_s,
-            },
+            iterations_per_level,
+            finest_level,
+            start_velocity_std_m_s,
             accel_bias_std_m_s2: cfg.accel_bias_std_m_s2,
             smoothness_rel_std: cfg.smoothness_rel_std,
             smoothness_scale_neutral: cfg.smoothness_scale_neutral,
