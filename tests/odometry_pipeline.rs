@@ -1863,3 +1863,57 @@ fn a_late_adjustment_keeps_the_frames_since_its_keyframe_in_the_next_chain() {
         "take-off, late adjustments with the keyframe before",
     );
 }
+
+/// `[keyframe_bundle] catch_up_on_refinement_thread`: with adjustments coming back late (offline
+/// `lag_frames`, as in real time), the frames tracked during each wait are handed to the
+/// refinement thread and tracked again there against the adjusted keyframe — every frame of
+/// every applied adjustment's wait (offline deterministically: up to the end marker the tracking
+/// thread sends when it collects), none left to the tracking thread; the carry by the last view's
+/// correction used without it tracks none again. The replay stays deterministic, differs from
+/// the carried one, and the take-off stays metric.
+#[test]
+fn the_frames_of_a_late_adjustments_wait_are_tracked_again_on_the_refinement_thread() {
+    let dir = takeoff();
+    let mut opts = ReplayOptions::default();
+    opts.keyframe_bundle.previous_host = true;
+    opts.keyframe_bundle.lag_frames = 4;
+    let carried = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    opts.keyframe_bundle.catch_up_on_refinement_thread = true;
+    let a = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let b = replay(&dir, &opts, &mut |_, _| {}).unwrap();
+    let waits: Vec<u64> = a
+        .odometry
+        .adjustments
+        .iter()
+        .filter(|r| r.outcome == AdjustmentOutcome::Applied)
+        // (Sent before its frame was tracked, collected before the lag's last: the frames
+        // between.)
+        .map(|r| r.frames_late)
+        .collect();
+    let (worker, here) = (
+        a.odometry.catch_up_frames_on_refinement_thread,
+        a.odometry.catch_up_frames,
+    );
+    println!(
+        "waits of the applied adjustments {waits:?}: {worker} frames tracked again on the refinement thread, {here} on the tracking thread"
+    );
+    assert!(waits.len() >= 3, "{waits:?}");
+    assert!(waits.iter().all(|&w| w == 4), "{waits:?}");
+    assert_eq!(worker as u64, waits.iter().sum::<u64>());
+    assert_eq!(here, 0);
+    assert_eq!(
+        carried.odometry.catch_up_frames + carried.odometry.catch_up_frames_on_refinement_thread,
+        0
+    );
+    let (ta, tb) = (trajectory(&a), trajectory(&b));
+    assert_eq!(ta.poses.len(), tb.poses.len());
+    for (p, q) in ta.poses.iter().zip(&tb.poses) {
+        assert_eq!(p, q, "replays differ");
+    }
+    assert_trajectories_differ(&carried, &a, "the frames tracked again moved nothing");
+    assert_metric_takeoff(
+        &dir,
+        &a,
+        "take-off, late adjustments caught up on their thread",
+    );
+}

@@ -86,7 +86,9 @@ pub struct KeyframeBundleConfig {
     /// it*). Offline with `lag_frames = 7` it ran away too (440 m) until the frames tracked while
     /// an adjustment is under way were kept in the next keyframe's chain (0.145 m); real time
     /// still runs away (1.10 m and 1 km in two of three runs; *The two-keyframe adjustment made
-    /// cheaper, and its chain kept across a late install*).
+    /// cheaper, and its chain kept across a late install*): offline at `lag_frames = 10` too,
+    /// unless the frames of the wait are tracked again (`catch_up_on_refinement_thread`; in real
+    /// time with it seeds 1, 2, 5, 16, 20 0.087–0.196 m, seed 8 1.96 m).
     pub previous_host: bool,
     /// At most this many of the frames between the two keyframes go into that adjustment (evenly
     /// spaced, the last one included; the IMU is preintegrated across the others).
@@ -141,6 +143,15 @@ pub struct KeyframeBundleConfig {
     /// median ATE 1.89 cm; docs/odometry-log.md, *The tracking thread's whole frame, 17 → 11
     /// ms*).
     pub max_catch_up_frames: usize,
+    /// When adjustments come back late (real time, or offline with `lag_frames`), the frames
+    /// tracked while one was under way are handed to the refinement thread as they are tracked
+    /// and tracked again there against the adjusted keyframe, from its last view's adjusted
+    /// state, right after the adjustment ([`super::catch_up`]); the tracking thread tracks again
+    /// only those that came after (the newest, usually none or one), `max_catch_up_frames` not
+    /// applied. Moved rigidly by the last view's correction instead, the frames of a long wait
+    /// keep the previous map's scale, and with `previous_host` S-V101 seed 1 ran away offline
+    /// at `lag_frames = 10` (210 m; tracked again, 0.14 m).
+    pub catch_up_on_refinement_thread: bool,
 }
 
 impl Default for KeyframeBundleConfig {
@@ -170,6 +181,7 @@ impl Default for KeyframeBundleConfig {
             gyro_turn_min_rad: 0.0044,
             max_velocity_change_m_s: 0.3,
             max_catch_up_frames: 0,
+            catch_up_on_refinement_thread: false,
         }
     }
 }

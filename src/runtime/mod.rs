@@ -1,6 +1,7 @@
 //! Running the pipeline: offline replay of recorded datasets, its report, and the configuration.
 
 pub mod adjust_check;
+pub mod catch_up;
 pub mod config;
 pub mod fc_sample;
 pub mod guessed_keyframe;

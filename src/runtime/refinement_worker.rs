@@ -11,6 +11,7 @@
 //! busy with another and outcomes are drained with `try_recv`; offline the odometry waits for each
 //! outcome at a fixed frame lag, which keeps a replay deterministic.
 
+use super::catch_up::{CatchUpFrame, CatchUpMessage, CatchUpStart, CatchUpTracker, CaughtUp};
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
 use super::map_keyframe::keyframe_of;
 use super::mapping_worker::MapSnapshot;
@@ -24,6 +25,7 @@ use crate::smoother::photometric_bundle::BundleConfig;
 use crate::tracking::{Keyframe, TrackerConfig};
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use nalgebra::Isometry3;
+use std::cell::Cell;
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Instant;
@@ -67,6 +69,10 @@ pub struct KeyframeJob {
     /// velocity_std_m_s`, m/s, with the smoothness prior made scale-neutral: a first map started
     /// in flight, whose start velocity is only dead-reckoned (`None`: the keyframe window's).
     pub start_velocity_std_m_s: Option<f64>,
+    /// `Some`: after the adjustment, the frames the odometry hands over meanwhile
+    /// ([`RefinementThread::catch_up_frame`]) are tracked again against the adjusted keyframe
+    /// here ([`super::catch_up`]).
+    pub catch_up: Option<CatchUpStart>,
 }
 
 /// The keyframe of an adjustment: built by the odometry (a keyframe it tracks), or the mapper's
@@ -126,6 +132,9 @@ pub struct ReadyKeyframe {
     pub median_inv_depth_change: f64,
     /// Median of adjusted / given inverse depth.
     pub median_inv_depth_ratio: f64,
+    /// The frames handed over while it was under way, tracked again against it from
+    /// `last_view` ([`KeyframeJob::catch_up`]; none without).
+    pub caught_up: Box<CaughtUp>,
 }
 
 /// The fixed inputs of every job.
@@ -139,12 +148,22 @@ pub struct RefineSettings {
     pub rays: Arc<PixelRays>,
     /// The thread's nice value is raised by this much ([`super::thread_priority`]).
     pub nice_increment: i32,
+    /// The IMU noise of the tracking thread's tracker (its bias random walks), for the
+    /// catch-up's tracker.
+    pub tracker_noise: ImuNoise,
 }
+
+/// Frames of the wait the odometry may hand over before the thread reads them (offline one
+/// adjustment's lag; a frame that does not fit is tracked again on the tracking thread).
+const CATCH_UP_QUEUE_LEN: usize = 256;
 
 /// Handle of a running refinement thread.
 pub struct RefinementThread {
     jobs: Sender<RefineJob>,
     outcomes: Receiver<RefineOutcome>,
+    catch_up: Sender<CatchUpMessage>,
+    /// The adjustment whose frames are being handed over, until its end marker is sent.
+    catch_up_open: Cell<Option<u64>>,
     join: JoinHandle<()>,
 }
 
@@ -153,6 +172,7 @@ impl RefinementThread {
     pub fn spawn(settings: RefineSettings) -> Self {
         let (jtx, jrx) = bounded::<RefineJob>(1);
         let (otx, orx) = bounded::<RefineOutcome>(2);
+        let (ctx, crx) = bounded::<CatchUpMessage>(CATCH_UP_QUEUE_LEN);
         let join = std::thread::Builder::new()
             .name("vidslam-refine".into())
             .spawn(move || {
@@ -160,14 +180,47 @@ impl RefinementThread {
                 // in priority as the thread.
                 let nice = settings.nice_increment;
                 super::thread_priority::run_lowered("vidslam-refine", nice, true, || {
-                    run(&settings, jrx, otx)
+                    run(&settings, jrx, otx, crx)
                 })
             })
             .expect("spawn the refinement thread");
         RefinementThread {
             jobs: jtx,
             outcomes: orx,
+            catch_up: ctx,
+            catch_up_open: Cell::new(None),
             join,
+        }
+    }
+
+    /// The frames handed over from now on are of adjustment `seq` (sent with
+    /// [`KeyframeJob::catch_up`]).
+    pub fn open_catch_up(&self, seq: u64) {
+        self.close_catch_up();
+        self.catch_up_open.set(Some(seq));
+    }
+
+    /// Hands a frame tracked while adjustment `frame.seq` is under way to the thread; `false` if
+    /// it was not (another adjustment's, closed, or the queue full).
+    pub fn catch_up_frame(&self, frame: CatchUpFrame) -> bool {
+        self.catch_up_open.get() == Some(frame.seq)
+            && self
+                .catch_up
+                .try_send(CatchUpMessage::Frame(Box::new(frame)))
+                .is_ok()
+    }
+
+    /// Whether the frames of adjustment `seq` are being handed over.
+    pub fn catching_up(&self, seq: u64) -> bool {
+        self.catch_up_open.get() == Some(seq)
+    }
+
+    /// No more frames for the open adjustment: its end marker (the thread, offline, tracks
+    /// frames until it comes).
+    fn close_catch_up(&self) {
+        if let Some(seq) = self.catch_up_open.take() {
+            // (Full: the thread gives up waiting after `catch_up::OFFLINE_WAIT`.)
+            let _ = self.catch_up.try_send(CatchUpMessage::End(seq));
         }
     }
 
@@ -189,8 +242,10 @@ impl RefinementThread {
         self.outcomes.try_recv().ok()
     }
 
-    /// Waits for the next outcome (`None` if the thread is gone).
+    /// Waits for the next outcome (`None` if the thread is gone); the frames handed over so far
+    /// are all there will be for it.
     pub fn recv(&self) -> Option<RefineOutcome> {
+        self.close_catch_up();
         self.outcomes.recv().ok()
     }
 
@@ -201,7 +256,9 @@ impl RefinementThread {
 
     /// Closes the queue and waits for the thread.
     pub fn finish(self) {
+        self.close_catch_up();
         drop(self.jobs);
+        drop(self.catch_up);
         let rx = self.outcomes;
         let drain = std::thread::spawn(move || while rx.recv().is_ok() {});
         let _ = self.join.join();
@@ -209,14 +266,21 @@ impl RefinementThread {
     }
 }
 
-fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOutcome>) {
+fn run(
+    s: &RefineSettings,
+    jobs: Receiver<RefineJob>,
+    outcomes: Sender<RefineOutcome>,
+    catch_up: Receiver<CatchUpMessage>,
+) {
+    // (Made at the first catch-up, kept: no allocation per adjustment.)
+    let mut catch_up_tracker: Option<CatchUpTracker> = None;
     for job in jobs.iter() {
         let started = Instant::now();
         let seq = job.seq();
         let result = match &job {
             RefineJob::Keyframe(j) => match &j.kf {
                 KeyframeToAdjust::Built(kf) => RefineResult::Keyframe {
-                    adjusted: adjust_keyframe(s, j, kf),
+                    adjusted: adjust_and_catch_up(s, j, kf, (&catch_up, &mut catch_up_tracker)),
                     unadjusted: None,
                 },
                 KeyframeToAdjust::Mapped {
@@ -225,7 +289,12 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
                 } => {
                     let kf = keyframe_of(snapshot, *t_world_cam, &s.rays, &s.tracking);
                     RefineResult::Keyframe {
-                        adjusted: adjust_keyframe(s, j, &kf),
+                        adjusted: adjust_and_catch_up(
+                            s,
+                            j,
+                            &kf,
+                            (&catch_up, &mut catch_up_tracker),
+                        ),
                         unadjusted: Some(Box::new(kf)),
                     }
                 }
@@ -241,6 +310,37 @@ fn run(s: &RefineSettings, jobs: Receiver<RefineJob>, outcomes: Sender<RefineOut
             break;
         }
     }
+}
+
+/// [`adjust_keyframe`], then the frames handed over meanwhile tracked again against the result
+/// ([`KeyframeJob::catch_up`]; read and dropped if the adjustment failed).
+fn adjust_and_catch_up(
+    s: &RefineSettings,
+    job: &KeyframeJob,
+    kf: &Keyframe,
+    (rx, tracker): (&Receiver<CatchUpMessage>, &mut Option<CatchUpTracker>),
+) -> Option<ReadyKeyframe> {
+    let mut ready = adjust_keyframe(s, job, kf);
+    if let Some(start) = &job.catch_up {
+        let last_view = ready.as_ref().map_or(job.rec.start, |r| r.last_view);
+        let t = tracker.get_or_insert_with(|| {
+            CatchUpTracker::new(
+                s.tracking.clone(),
+                &s.camera,
+                s.t_body_cam,
+                s.tracker_noise,
+                last_view,
+            )
+        });
+        match &mut ready {
+            Some(r) => {
+                let done = t.run(rx, job.seq, (&r.keyframe, &r.last_view), start, &job.noise);
+                *r.caught_up = done;
+            }
+            None => CatchUpTracker::skip(rx, job.seq, start),
+        }
+    }
+    ready
 }
 
 fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob, kf: &Keyframe) -> Option<ReadyKeyframe> {
@@ -286,6 +386,7 @@ fn adjust_keyframe(s: &RefineSettings, job: &KeyframeJob, kf: &Keyframe) -> Opti
         keyframe_state: a.keyframe_state,
         median_inv_depth_change: a.median_inv_depth_change,
         median_inv_depth_ratio: a.median_inv_depth_ratio,
+        caught_up: Box::default(),
     })
 }
 

@@ -283,8 +283,11 @@ pub struct ReplayReport {
     pub refinements_rejected: usize,
     pub refinements_dropped: usize,
     pub refinements_discarded: usize,
-    /// Frames tracked again against an adjusted keyframe that came back after them.
+    /// Frames tracked again on the tracking thread against an adjusted keyframe that came back
+    /// after them, and those the refinement thread tracked again right after the adjustment
+    /// (`[keyframe_bundle] catch_up_on_refinement_thread`).
     pub keyframe_bundle_catch_up_frames: usize,
+    pub keyframe_bundle_catch_up_frames_on_refinement_thread: usize,
     /// New keyframes in flight: frames from the one that started a keyframe to its first map from
     /// the mapper, and to its installation for tracking (median and largest). In real time this is
     /// the latency the mapper's and the adjustment's speed give (docs/odometry-log.md, *S-V101 in
@@ -650,6 +653,9 @@ impl ReplayReport {
             refinements_dropped: out.odometry.refinements_dropped,
             refinements_discarded: out.odometry.refinements_discarded,
             keyframe_bundle_catch_up_frames: out.odometry.catch_up_frames,
+            keyframe_bundle_catch_up_frames_on_refinement_thread: out
+                .odometry
+                .catch_up_frames_on_refinement_thread,
             keyframe_map_latency_frames_p50: percentile(&map_lat, 50.0),
             keyframe_map_latency_frames_max: map_lat.last().copied().unwrap_or(0.0),
             keyframe_install_latency_frames_p50: percentile(&install_lat, 50.0),

@@ -310,6 +310,9 @@ pub struct Odometry {
     /// Frames tracked while a keyframe adjustment is under way (the newest
     /// [`Self::catch_up_limit`]): tracked again once it is back.
     catch_up: Vec<(TimeNs, Arc<Image<u8>>)>,
+    /// `[keyframe_bundle] catch_up_on_refinement_thread`: the IMU of the next frame handed to
+    /// the refinement thread starts here (the last view, then the last frame handed over).
+    catch_up_imu_from: TimeNs,
     refine_seq: u64,
     /// Jobs sent to the refinement thread whose outcome has not been taken (0 or 1).
     refine_outstanding: usize,
@@ -511,6 +514,7 @@ impl Odometry {
                     keyframe_bundle: cfg.keyframe_bundle.clone(),
                     rays: rays.clone(),
                     nice_increment: cfg.bootstrap.refinement_nice,
+                    tracker_noise: rig.noise,
                 })
             });
         let b = &cfg.bootstrap;
@@ -534,6 +538,7 @@ impl Odometry {
             times: FrameTimes::default(),
             rays,
             catch_up: Vec::new(),
+            catch_up_imu_from: TimeNs(0),
             refine_seq: 0,
             refine_outstanding: 0,
             imu: VecDeque::with_capacity(4096),
@@ -1047,14 +1052,8 @@ impl Odometry {
         {
             self.zero_velocity_update(&mut result);
         }
-        let max_catch_up = self.catch_up_limit();
-        if self.phase == Phase::Tracking && self.adjusting_keyframe().is_some() && max_catch_up > 0
-        {
-            // The newest ones only.
-            if self.catch_up.len() >= max_catch_up {
-                self.catch_up.remove(0);
-            }
-            self.catch_up.push((t, image.clone()));
+        if self.phase == Phase::Tracking {
+            self.keep_for_catch_up(t, &image);
         }
         if self.phase == Phase::Tracking && result.flag.is_none() {
             let frame = MapFrame {

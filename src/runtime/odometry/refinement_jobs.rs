@@ -3,6 +3,7 @@
 //! tracked meanwhile tracked again), and when one still out is given up.
 
 use super::*;
+use crate::runtime::catch_up::{CatchUpFrame, CatchUpStart, CaughtUp};
 use crate::runtime::keyframe_bundle::evenly_spaced;
 use crate::runtime::map_keyframe::build;
 use crate::runtime::refinement_worker::KeyframeToAdjust;
@@ -126,6 +127,21 @@ impl Odometry {
         // A first map started in flight with guessed depths: its start velocity is the one
         // dead-reckoned through the loss.
         let reinit = tracked && self.reinit_kf.take_if(|id| *id == rec.id).is_some();
+        // The frames of the wait tracked again on the refinement thread: from the last view,
+        // with this frame's covariance; a new keyframe's brightness starts at zero, as its
+        // installation sets it.
+        let catch_up = (self.cfg.keyframe_bundle.catch_up_on_refinement_thread
+            && self.adjustments_late())
+        .then(|| CatchUpStart {
+            covariance: *self.tracker.covariance(),
+            brightness: if tracked {
+                self.tracker.brightness()
+            } else {
+                (0.0, 0.0)
+            },
+            wait_for_end: !self.cfg.realtime,
+        });
+        let catching_up = catch_up.is_some();
         self.refine_seq += 1;
         let job = RefineJob::Keyframe(Box::new(KeyframeJob {
             seq: self.refine_seq,
@@ -139,6 +155,7 @@ impl Odometry {
             free_depths: tracked,
             start_velocity_std_m_s: reinit
                 .then_some(self.cfg.bootstrap.reinit_velocity_free_std_m_s),
+            catch_up,
         }));
         let kind = PendingKind::Keyframe {
             tracked_last,
@@ -148,7 +165,60 @@ impl Odometry {
             tracked,
             chain_imu_gap_s,
         };
-        self.send_refinement(job, kind).is_ok()
+        let sent = self.send_refinement(job, kind).is_ok();
+        if sent
+            && catching_up
+            && let Some(refiner) = &self.refiner
+        {
+            refiner.open_catch_up(self.refine_seq);
+            self.catch_up_imu_from = tracked_last.nav.t;
+        }
+        sent
+    }
+
+    /// Keeps the frame just tracked (at `t`) while a keyframe adjustment is under way, to be
+    /// tracked again against the adjusted keyframe when it is back: handed to the refinement
+    /// thread (`[keyframe_bundle] catch_up_on_refinement_thread`) and kept here for the frames
+    /// it has not done by then (all of them, up to [`OFFLINE_MAX_CATCH_UP_FRAMES`]); otherwise
+    /// the newest [`Self::catch_up_limit`] kept here.
+    pub(super) fn keep_for_catch_up(&mut self, t: TimeNs, image: &Arc<Image<u8>>) {
+        let Some(seq) = self
+            .refining
+            .as_ref()
+            .filter(|p| matches!(p.kind, PendingKind::Keyframe { .. }))
+            .map(|p| p.seq)
+        else {
+            return;
+        };
+        let handed_over = match &self.refiner {
+            Some(r) if r.catching_up(seq) => {
+                let frame = CatchUpFrame {
+                    seq,
+                    t,
+                    image: image.clone(),
+                    imu: imu_between(self.imu.make_contiguous(), self.catch_up_imu_from, Some(t)),
+                    gyro_turn_rad: self.gyro_turn_rad(),
+                };
+                if r.catch_up_frame(frame) {
+                    self.catch_up_imu_from = t;
+                }
+                true
+            }
+            _ => false,
+        };
+        let max = if handed_over {
+            OFFLINE_MAX_CATCH_UP_FRAMES
+        } else {
+            self.catch_up_limit()
+        };
+        if max == 0 {
+            return;
+        }
+        // The newest ones only.
+        if self.catch_up.len() >= max {
+            self.catch_up.remove(0);
+        }
+        self.catch_up.push((t, image.clone()));
     }
 
     /// Queues `job` (offline waiting for room, real time only if there is room) and awaits it.
@@ -407,15 +477,31 @@ impl Odometry {
         // tracked again are moved by the last view's correction.
         let correction = pose_of(&a.last_view) * pose_of(tracked_last).inverse();
         let after_last_view = tracked_last.nav.t;
-        if self.catch_up_limit() > 0 || frames_late == 0 {
+        let worker = &a.caught_up;
+        if !worker.frames.is_empty() || self.catch_up_limit() > 0 || frames_late == 0 {
             // (`catch_up` holds the newest frames: the IMU spans any before them. Back in the
-            // frame it was sent in, tracking goes on from the last view.)
+            // frame it was sent in, tracking goes on from the last view; after the frames the
+            // refinement thread tracked again, from the newest of them.)
             let state_now = *self.tracker.state();
             let last_t = self.last_t;
-            self.tracker.reset_state(a.last_view, cov);
-            self.last_t = Some(a.last_view.nav.t);
             let mut poses = Vec::with_capacity(catch_up.len());
-            for (t, image) in catch_up {
+            let from = match worker.frames.last() {
+                Some(newest) => {
+                    self.tracker.reset_state(newest.state, worker.covariance);
+                    self.tracker.set_brightness(worker.brightness);
+                    self.take_caught_up(worker, catch_up, &mut poses);
+                    newest.state.nav.t
+                }
+                None => {
+                    self.tracker.reset_state(a.last_view, cov);
+                    a.last_view.nav.t
+                }
+            };
+            self.last_t = Some(from);
+            let on_this_thread = catch_up.iter().filter(|(t, _)| *t > from);
+            self.stats.catch_up_frames += on_this_thread.clone().count();
+            self.stats.catch_up_frames_on_refinement_thread += worker.frames.len();
+            for (t, image) in on_this_thread {
                 self.track(*t, image);
                 poses.push((*t, self.tracker.t_world_cam()));
                 if self.cfg.keyframe_bundle.previous_host {
@@ -445,13 +531,46 @@ impl Odometry {
                 self.tracker.reset_state(state_now, cov);
                 self.last_t = last_t;
             }
-            self.stats.catch_up_frames += catch_up.len();
         } else {
             let x = carry_correction(self.tracker.state(), tracked_last, &a.last_view);
             if x.is_finite() {
                 self.tracker.reset_state(x, cov);
                 for h in self.history.iter_mut().filter(|h| h.t > after_last_view) {
                     h.t_world_cam = correction * h.t_world_cam;
+                }
+            }
+        }
+    }
+
+    /// The frames of the wait the refinement thread tracked again against the adjusted keyframe
+    /// (`worker`): their poses go to `poses` (for the frames kept for the next keyframe) and, with
+    /// `previous_host`, their entries in the next keyframe's chain are replaced (the image from
+    /// `catch_up`, which holds every frame handed over).
+    fn take_caught_up(
+        &mut self,
+        worker: &CaughtUp,
+        catch_up: &[(TimeNs, Arc<Image<u8>>)],
+        poses: &mut Vec<(TimeNs, Isometry3<f64>)>,
+    ) {
+        for f in &worker.frames {
+            poses.push((f.t, f.t_world_cam));
+            if !self.cfg.keyframe_bundle.previous_host {
+                continue;
+            }
+            match self.tracked_frames.iter_mut().find(|(m, _)| m.t == f.t) {
+                Some((m, x)) => {
+                    m.t_world_cam = f.t_world_cam;
+                    *x = f.state;
+                }
+                None => {
+                    if let Some((_, image)) = catch_up.iter().find(|(t, _)| *t == f.t) {
+                        let frame = MapFrame {
+                            t: f.t,
+                            image: image.clone(),
+                            t_world_cam: f.t_world_cam,
+                        };
+                        self.tracked_frames.push_back((frame, f.state));
+                    }
                 }
             }
         }

@@ -88,8 +88,12 @@ pub struct OdometryStats {
     /// Of those started, the ones whose outcome was not used: superseded by a newer one, or their
     /// keyframe (first map) no longer tracked (built) when they came back.
     pub refinements_discarded: usize,
-    /// Frames tracked again against an adjusted keyframe that came back after them.
+    /// Frames tracked again on this thread against an adjusted keyframe that came back after
+    /// them.
     pub catch_up_frames: usize,
+    /// Frames the refinement thread tracked again against the keyframe it had just adjusted
+    /// (`[keyframe_bundle] catch_up_on_refinement_thread`).
+    pub catch_up_frames_on_refinement_thread: usize,
     /// Every keyframe adjustment that came back, in order (`OUT/adjustments.csv`): what each
     /// changed and what became of it ([`OdometryStats::keyframe_bundle_s`] and the other
     /// figures per adjustment are read from it).
