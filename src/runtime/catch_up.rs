@@ -1,18 +1,18 @@
 //! The frames tracked while a keyframe adjustment was under way, tracked again against the
 //! adjusted keyframe on the refinement thread (`[keyframe_bundle] catch_up_on_refinement_thread`).
 //!
-//! An adjustment comes back several frames after it was sent (in real time 8 p50, up to 13 on
-//! S-V101 with `previous_host`). The frames of the wait were tracked against the keyframe before,
-//! whose map the adjustment may have rescaled: moved rigidly by the last view's correction
-//! ([`super::keyframe_bundle::carry_correction`]) their positions, velocities and the next
-//! keyframe's chain keep the old map's scale, and offline at `lag_frames = 10 / 13` S-V101 seed 1
-//! runs away (210 m / 1.2 km; tracking only the newest again, 8 m / 280 m), while tracking all of
-//! them again holds (0.14 / 0.12 m; docs/odometry-log.md, *The frames of a late adjustment's
+//! An adjustment comes back several frames after it was sent (in real time on S-V101 with
+//! `previous_host` 9–11 frames p50, up to 19). The frames of the wait were tracked against the
+//! keyframe before, whose map the adjustment may have rescaled: moved rigidly by the last view's
+//! correction ([`super::keyframe_bundle::carry_correction`]) their positions, velocities and the
+//! next keyframe's chain keep the old map's scale, and offline at `lag_frames = 10 / 13` S-V101
+//! seed 1 runs away (210 m / 1.2 km; tracking only the newest again, 8 m / 280 m), while tracking
+//! all of them again holds (0.14 / 0.12 m; docs/odometry-log.md, *The frames of a late adjustment's
 //! wait tracked again on the refinement thread*). On the tracking thread that is ~4 ms a frame,
 //! 30–35 ms in the frame the result comes back. Here the refinement thread does it after the
 //! adjustment, from the last view's adjusted state, with the frames and their IMU handed over as
-//! they are tracked; the tracking thread then tracks again only those that arrived after the
-//! last one done here.
+//! they are tracked; the tracking thread then tracks again only those that arrived after the last
+//! one done here.
 //!
 //! The IMU of each frame is preintegrated from the frame before (eq. 1–6, the gyro turned as the
 //! keyframe window read it when the frame was tracked) and the frame tracked photometrically

@@ -88,7 +88,7 @@ pub struct KeyframeBundleConfig {
     /// still runs away (1.10 m and 1 km in two of three runs; *The two-keyframe adjustment made
     /// cheaper, and its chain kept across a late install*): offline at `lag_frames = 10` too,
     /// unless the frames of the wait are tracked again (`catch_up_on_refinement_thread`; in real
-    /// time with it seeds 1, 2, 5, 16, 20 0.087–0.196 m, seed 8 1.96 m).
+    /// time with it seeds 1, 2, 5, 16, 20 0.087–0.202 m, seed 8 1.96 and 0.157 m).
     pub previous_host: bool,
     /// At most this many of the frames between the two keyframes go into that adjustment (evenly
     /// spaced, the last one included; the IMU is preintegrated across the others).

@@ -308,7 +308,8 @@ pub struct Odometry {
     /// builder's, handed back with each build).
     spare_pyramid: Option<Pyramid>,
     /// Frames tracked while a keyframe adjustment is under way (the newest
-    /// [`Self::catch_up_limit`]): tracked again once it is back.
+    /// [`Self::catch_up_limit`]; all, when they are also handed to the refinement thread): tracked
+    /// again once it is back (those the refinement thread has not).
     catch_up: Vec<(TimeNs, Arc<Image<u8>>)>,
     /// `[keyframe_bundle] catch_up_on_refinement_thread`: the IMU of the next frame handed to
     /// the refinement thread starts here (the last view, then the last frame handed over).
