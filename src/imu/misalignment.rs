@@ -12,10 +12,30 @@
 //! [`super::residual`] applies to it unchanged; [`d_residual_d_misalignment`] is the residual's
 //! derivative with respect to φ (additive increments).
 
-use super::integration::Preintegration;
+use super::integration::{ImuBias, Preintegration};
 use super::residual::{FrameState, Vector15, block};
+use super::{ImuNoise, ImuSample};
 use crate::geometry::{exp_so3, right_jacobian, right_jacobian_inv};
+use crate::time::TimeNs;
 use nalgebra::{Matrix3, SMatrix, Vector3};
+
+/// The IMU of one frame interval, `t0` to `t1` (eq. 1–6 at `bias`; `samples` may reach beyond
+/// it), as a gyro turned by `Exp(phi)` integrates it ([`turned`]; not turned if `phi` is zero).
+pub fn preintegrate_turned(
+    samples: &[ImuSample],
+    (t0, t1): (TimeNs, TimeNs),
+    bias: ImuBias,
+    noise: &ImuNoise,
+    phi: &Vector3<f64>,
+) -> Preintegration {
+    let mut pre = Preintegration::new(t0, bias);
+    // `integrate` finds the samples bracketing the interval itself.
+    pre.integrate(samples, t1, Some(noise));
+    if *phi != Vector3::zeros() {
+        pre = turned(&pre, phi);
+    }
+    pre
+}
 
 /// `pre` as a gyro turned by `Exp(phi)` would have integrated it (`phi` in rad, gyro → body).
 pub fn turned(pre: &Preintegration, phi: &Vector3<f64>) -> Preintegration {

@@ -18,11 +18,11 @@
 //! keyframe window read it when the frame was tracked) and the frame tracked photometrically
 //! jointly with it (eq. 16–22), exactly as on the tracking thread.
 
-use crate::camera::CameraModel;
 use crate::image::Image;
-use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15, Preintegration};
+use crate::imu::misalignment::preintegrate_turned;
+use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15};
 use crate::time::TimeNs;
-use crate::tracking::{Keyframe, Tracker, TrackerConfig};
+use crate::tracking::{Keyframe, Tracker};
 use crossbeam_channel::{Receiver, RecvTimeoutError};
 use nalgebra::{Isometry3, Vector3};
 use std::sync::Arc;
@@ -80,80 +80,55 @@ pub struct CatchUpStart {
 /// (the tracking thread stopped: a replay that ends while an adjustment is out).
 const OFFLINE_WAIT: Duration = Duration::from_secs(30);
 
-/// The refinement thread's tracker, made once and kept between adjustments.
-pub struct CatchUpTracker {
-    tracker: Tracker,
+/// Tracks the frames of adjustment `seq` handed over on `rx` with `tracker` (the refinement
+/// thread's own, made once) against `keyframe` from `last_view` (the adjusted state of the
+/// newest frame the adjustment saw), stopping at the first frame that is not tracked (flagged,
+/// or not finite). Frames of other adjustments are dropped. `noise`: the odometry's
+/// preintegration noise when the adjustment was sent.
+pub fn catch_up(
+    tracker: &mut Tracker,
+    (rx, seq): (&Receiver<CatchUpMessage>, u64),
+    (keyframe, last_view): (&Keyframe, &FrameState),
+    start: &CatchUpStart,
+    noise: &ImuNoise,
+) -> CaughtUp {
+    tracker.set_keyframe(keyframe.clone());
+    tracker.reset_state(*last_view, start.covariance);
+    tracker.set_brightness(start.brightness);
+    let mut out = CaughtUp {
+        frames: Vec::new(),
+        covariance: start.covariance,
+        brightness: start.brightness,
+    };
+    let mut last_t = last_view.nav.t;
+    let mut failed = false;
+    while let Some(f) = next_frame(rx, seq, start.wait_for_end) {
+        // (Offline the frames after a failure are still read, up to the end marker.)
+        if failed || f.t <= last_t {
+            continue;
+        }
+        let bias = tracker.state().bias;
+        let pre = preintegrate_turned(&f.imu, (last_t, f.t), bias, noise, &f.gyro_turn_rad);
+        let r = tracker.track(f.t, &f.image, &pre);
+        if r.flag.is_some() || !r.state.is_finite() {
+            failed = true;
+            continue;
+        }
+        last_t = f.t;
+        out.frames.push(CaughtUpFrame {
+            t: f.t,
+            state: r.state,
+            t_world_cam: tracker.t_world_cam(),
+        });
+        out.covariance = *tracker.covariance();
+        out.brightness = tracker.brightness();
+    }
+    out
 }
 
-impl CatchUpTracker {
-    /// `noise`: the tracking thread's tracker's (its bias random walks weigh the IMU residual).
-    pub fn new(
-        cfg: TrackerConfig,
-        camera: &CameraModel,
-        t_body_cam: Isometry3<f64>,
-        noise: ImuNoise,
-        state: FrameState,
-    ) -> Self {
-        CatchUpTracker {
-            tracker: Tracker::new(cfg, camera, t_body_cam, noise, state, Matrix15::identity()),
-        }
-    }
-
-    /// Tracks the frames of adjustment `seq` handed over on `rx` against `keyframe` from
-    /// `last_view` (the adjusted state of the newest frame the adjustment saw), stopping at the
-    /// first frame that is not tracked (flagged, or not finite). Frames of other adjustments are
-    /// dropped.
-    pub fn run(
-        &mut self,
-        rx: &Receiver<CatchUpMessage>,
-        seq: u64,
-        (keyframe, last_view): (&Keyframe, &FrameState),
-        start: &CatchUpStart,
-        noise: &ImuNoise,
-    ) -> CaughtUp {
-        // `noise`: the odometry's preintegration noise when the adjustment was sent.
-        self.tracker.set_keyframe(keyframe.clone());
-        self.tracker.reset_state(*last_view, start.covariance);
-        self.tracker.set_brightness(start.brightness);
-        let mut out = CaughtUp {
-            frames: Vec::new(),
-            covariance: start.covariance,
-            brightness: start.brightness,
-        };
-        let mut last_t = last_view.nav.t;
-        let mut failed = false;
-        while let Some(f) = next_frame(rx, seq, start.wait_for_end) {
-            // (Offline the frames after a failure are still read, up to the end marker.)
-            if failed || f.t <= last_t {
-                continue;
-            }
-            let x0 = *self.tracker.state();
-            let mut pre = Preintegration::new(last_t, x0.bias);
-            pre.integrate(&f.imu, f.t, Some(noise));
-            if f.gyro_turn_rad != Vector3::zeros() {
-                pre = crate::imu::misalignment::turned(&pre, &f.gyro_turn_rad);
-            }
-            let r = self.tracker.track(f.t, &f.image, &pre);
-            if r.flag.is_some() || !r.state.is_finite() {
-                failed = true;
-                continue;
-            }
-            last_t = f.t;
-            out.frames.push(CaughtUpFrame {
-                t: f.t,
-                state: r.state,
-                t_world_cam: self.tracker.t_world_cam(),
-            });
-            out.covariance = *self.tracker.covariance();
-            out.brightness = self.tracker.brightness();
-        }
-        out
-    }
-
-    /// Reads the frames of adjustment `seq` without tracking them (the adjustment failed).
-    pub fn skip(rx: &Receiver<CatchUpMessage>, seq: u64, start: &CatchUpStart) {
-        while next_frame(rx, seq, start.wait_for_end).is_some() {}
-    }
+/// Reads the frames of adjustment `seq` without tracking them (the adjustment failed).
+pub fn skip_frames(rx: &Receiver<CatchUpMessage>, seq: u64, start: &CatchUpStart) {
+    while next_frame(rx, seq, start.wait_for_end).is_some() {}
 }
 
 /// The next frame of adjustment `seq` (those of others dropped); `None` at its end marker
@@ -243,7 +218,7 @@ mod tests {
             brightness: (0.0, 0.0),
             wait_for_end: true,
         };
-        CatchUpTracker::skip(&rx, 7, &start);
+        skip_frames(&rx, 7, &start);
         assert_eq!(times(&rx, 8, false), vec![30]);
     }
 }

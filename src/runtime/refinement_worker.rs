@@ -11,7 +11,9 @@
 //! busy with another and outcomes are drained with `try_recv`; offline the odometry waits for each
 //! outcome at a fixed frame lag, which keeps a replay deterministic.
 
-use super::catch_up::{CatchUpFrame, CatchUpMessage, CatchUpStart, CatchUpTracker, CaughtUp};
+use super::catch_up::{
+    CatchUpFrame, CatchUpMessage, CatchUpStart, CaughtUp, catch_up, skip_frames,
+};
 use super::keyframe_bundle::{KeyframeBundleConfig, KeyframeRecord, bundle_adjust_keyframe};
 use super::map_keyframe::keyframe_of;
 use super::mapping_worker::MapSnapshot;
@@ -20,9 +22,9 @@ use super::takeoff::{
 };
 use crate::camera::{CameraModel, PixelRays};
 use crate::image::Pyramid;
-use crate::imu::{FrameState, ImuNoise, ImuSample};
+use crate::imu::{FrameState, ImuNoise, ImuSample, Matrix15};
 use crate::smoother::photometric_bundle::BundleConfig;
-use crate::tracking::{Keyframe, TrackerConfig};
+use crate::tracking::{Keyframe, Tracker, TrackerConfig};
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use nalgebra::Isometry3;
 use std::cell::Cell;
@@ -273,7 +275,7 @@ fn run(
     catch_up: Receiver<CatchUpMessage>,
 ) {
     // (Made at the first catch-up, kept: no allocation per adjustment.)
-    let mut catch_up_tracker: Option<CatchUpTracker> = None;
+    let mut catch_up_tracker: Option<Tracker> = None;
     for job in jobs.iter() {
         let started = Instant::now();
         let seq = job.seq();
@@ -318,27 +320,30 @@ fn adjust_and_catch_up(
     s: &RefineSettings,
     job: &KeyframeJob,
     kf: &Keyframe,
-    (rx, tracker): (&Receiver<CatchUpMessage>, &mut Option<CatchUpTracker>),
+    (rx, tracker): (&Receiver<CatchUpMessage>, &mut Option<Tracker>),
 ) -> Option<ReadyKeyframe> {
     let mut ready = adjust_keyframe(s, job, kf);
-    if let Some(start) = &job.catch_up {
-        let last_view = ready.as_ref().map_or(job.rec.start, |r| r.last_view);
-        let t = tracker.get_or_insert_with(|| {
-            CatchUpTracker::new(
-                s.tracking.clone(),
-                &s.camera,
-                s.t_body_cam,
-                s.tracker_noise,
-                last_view,
-            )
-        });
-        match &mut ready {
-            Some(r) => {
-                let done = t.run(rx, job.seq, (&r.keyframe, &r.last_view), start, &job.noise);
-                *r.caught_up = done;
-            }
-            None => CatchUpTracker::skip(rx, job.seq, start),
+    let Some(start) = &job.catch_up else {
+        return ready;
+    };
+    match &mut ready {
+        Some(r) => {
+            // (Its state and covariance are set by each catch-up.)
+            let t = tracker.get_or_insert_with(|| {
+                let (cfg, cov) = (s.tracking.clone(), Matrix15::identity());
+                Tracker::new(
+                    cfg,
+                    &s.camera,
+                    s.t_body_cam,
+                    s.tracker_noise,
+                    r.last_view,
+                    cov,
+                )
+            });
+            let views = (&r.keyframe, &r.last_view);
+            *r.caught_up = catch_up(t, (rx, job.seq), views, start, &job.noise);
         }
+        None => skip_frames(rx, job.seq, start),
     }
     ready
 }

@@ -80,6 +80,7 @@ use crate::dataset::StampedPose;
 use crate::image::{Image, Pyramid};
 use crate::imu::gyro_alignment::GyroAlignmentConfig;
 use crate::imu::gyro_noise_reading::GyroNoiseReading;
+use crate::imu::misalignment::preintegrate_turned;
 use crate::imu::scale_alignment::AlignmentPrior;
 use crate::imu::static_init::{
     StaticDetector, StaticDetectorConfig, StaticEstimate, StaticEvent, rest_covariance,
@@ -1195,14 +1196,11 @@ impl Odometry {
 
     fn track(&mut self, t: TimeNs, image: &Image<u8>) -> TrackResult {
         let t0 = self.last_t.unwrap_or(t);
-        let mut pre = Preintegration::new(t0, self.tracker.state().bias);
-        // `integrate` finds the samples bracketing the interval itself.
-        pre.integrate(self.imu.make_contiguous(), t, Some(&self.imu_noise));
+        // The gyro turned onto the body frame as the keyframe window reads it.
         let phi = self.gyro_turn_rad();
-        if phi != Vector3::zeros() {
-            // The gyro turned onto the body frame as the keyframe window reads it.
-            pre = crate::imu::misalignment::turned(&pre, &phi);
-        }
+        let bias = self.tracker.state().bias;
+        let samples = self.imu.make_contiguous();
+        let pre = preintegrate_turned(samples, (t0, t), bias, &self.imu_noise, &phi);
         self.last_t = Some(t);
         let x0 = *self.tracker.state();
         if let Some(s) = self.chain_shadow.as_mut() {

@@ -504,19 +504,8 @@ impl Odometry {
             for (t, image) in on_this_thread {
                 self.track(*t, image);
                 poses.push((*t, self.tracker.t_world_cam()));
-                if self.cfg.keyframe_bundle.previous_host {
-                    let frame = MapFrame {
-                        t: *t,
-                        image: image.clone(),
-                        t_world_cam: self.tracker.t_world_cam(),
-                    };
-                    let entry = (frame, *self.tracker.state());
-                    // (Its first tracking, kept above, is replaced.)
-                    match self.tracked_frames.iter_mut().find(|(f, _)| f.t == *t) {
-                        Some(e) => *e = entry,
-                        None => self.tracked_frames.push_back(entry),
-                    }
-                }
+                let (pose, x) = (self.tracker.t_world_cam(), *self.tracker.state());
+                self.retracked_chain_frame(*t, pose, x, Some(image));
             }
             if self.tracker.state().is_finite() {
                 // The frames kept for the next keyframe get their new poses.
@@ -554,23 +543,37 @@ impl Odometry {
     ) {
         for f in &worker.frames {
             poses.push((f.t, f.t_world_cam));
-            if !self.cfg.keyframe_bundle.previous_host {
-                continue;
+            let image = catch_up.iter().find(|(t, _)| *t == f.t).map(|(_, i)| i);
+            self.retracked_chain_frame(f.t, f.t_world_cam, f.state, image);
+        }
+    }
+
+    /// With `previous_host`, a frame of the next keyframe's chain tracked again (at `t`, to
+    /// `t_world_cam` and state `x`): its first tracking is replaced, or — not kept — it is added
+    /// (given its `image`).
+    fn retracked_chain_frame(
+        &mut self,
+        t: TimeNs,
+        t_world_cam: Isometry3<f64>,
+        x: FrameState,
+        image: Option<&Arc<Image<u8>>>,
+    ) {
+        if !self.cfg.keyframe_bundle.previous_host {
+            return;
+        }
+        match self.tracked_frames.iter_mut().find(|(m, _)| m.t == t) {
+            Some((m, kept)) => {
+                m.t_world_cam = t_world_cam;
+                *kept = x;
             }
-            match self.tracked_frames.iter_mut().find(|(m, _)| m.t == f.t) {
-                Some((m, x)) => {
-                    m.t_world_cam = f.t_world_cam;
-                    *x = f.state;
-                }
-                None => {
-                    if let Some((_, image)) = catch_up.iter().find(|(t, _)| *t == f.t) {
-                        let frame = MapFrame {
-                            t: f.t,
-                            image: image.clone(),
-                            t_world_cam: f.t_world_cam,
-                        };
-                        self.tracked_frames.push_back((frame, f.state));
-                    }
+            None => {
+                if let Some(image) = image {
+                    let frame = MapFrame {
+                        t,
+                        image: image.clone(),
+                        t_world_cam,
+                    };
+                    self.tracked_frames.push_back((frame, x));
                 }
             }
         }
